@@ -1,0 +1,336 @@
+//! The environment loop (Acme's EnvironmentLoop): step K environments with one batched policy
+//! forward pass, hand every transition to an [`Adder`], report finished episodes, follow the
+//! learner's variables (weights, stage, warm-up, stop), and log selected episodes to MCAP.
+//!
+//! It knows nothing about the network: the actor process plugs in the gRPC adder and variable
+//! client; tests plug in in-process ones.
+
+use crate::episode_logger::EpisodeSelector;
+use candle_core::{Device, Tensor};
+use dvnav_common::config::Config;
+use dvnav_common::control::{action_to_velocity, pid_velocity, velocity_to_action};
+use dvnav_common::core::{score, Adder, EpisodeStats, Outcome, VariableSource};
+use dvnav_common::obs::{ACTION_DIM, GOAL_ANGLE, GOAL_DISTANCE};
+use dvnav_common::sim::{Room, VecEnv};
+use dvnav_common::weights::PolicyHandle;
+use rand::SeedableRng;
+use rand_distr::{Distribution, StandardNormal};
+use std::collections::HashMap;
+use std::sync::Arc;
+
+/// Who drives an episode.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Driver {
+    Pid,
+    Policy,
+}
+
+#[derive(Clone, Debug)]
+struct EpisodeInfo {
+    id: u64,
+    stage: u32,
+    driver: Driver,
+    logged: bool,
+}
+
+/// Counters of one actor's loop.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct LoopCounters {
+    /// Environment steps taken (all environments).
+    pub env_steps: u64,
+    /// Episodes finished.
+    pub episodes: u64,
+    /// Episodes driven by the PID controller.
+    pub warmup_episodes: u64,
+    /// Episodes written to MCAP.
+    pub logged_episodes: u64,
+    /// Smallest weight version that chose an action (0 if only PID acted).
+    pub min_policy_version: u64,
+    /// Largest weight version that chose an action.
+    pub max_policy_version: u64,
+    /// Distinct weight versions loaded.
+    pub weight_updates: u64,
+    /// Episodes by outcome.
+    pub successes: u64,
+    /// Collisions.
+    pub collisions: u64,
+    /// Timeouts.
+    pub timeouts: u64,
+}
+
+/// Steps environments until the learner says stop.
+pub struct EnvironmentLoop<A: Adder, V: VariableSource> {
+    cfg: Config,
+    actor_name: String,
+    actor_id: u32,
+    envs: VecEnv,
+    adder: A,
+    source: V,
+    policy: PolicyHandle,
+    rooms: HashMap<String, Arc<Room>>,
+    stage: u32,
+    episodes: Vec<EpisodeInfo>,
+    next_episode_id: u64,
+    obs: Vec<f32>,
+    next_obs: Vec<f32>,
+    actions: Vec<[f32; ACTION_DIM]>,
+    rng: rand_pcg::Pcg64,
+    seed: u64,
+    logger: Option<EpisodeSelector>,
+    counters: LoopCounters,
+}
+
+impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
+    /// A loop over `cfg.actor.envs` environments seeded from `seed`, in the first room of the
+    /// curriculum until the learner assigns another.
+    pub fn new(
+        cfg: Config,
+        actor_name: String,
+        actor_id: u32,
+        seed: u64,
+        adder: A,
+        source: V,
+        logger: Option<EpisodeSelector>,
+    ) -> anyhow::Result<Self> {
+        let first_room = cfg.curriculum.rooms[0].clone();
+        let room = Room::builtin(&first_room)?;
+        let n = cfg.actor.envs;
+        let seeds: Vec<u64> = (0..n as u64).map(|i| seed.wrapping_mul(7919).wrapping_add(i)).collect();
+        let envs = VecEnv::new(vec![room.clone(); n], &cfg.env, &seeds);
+        let d = cfg.obs_dim();
+        let mut this = Self {
+            actor_name,
+            actor_id,
+            envs,
+            adder,
+            source,
+            policy: PolicyHandle::default(),
+            rooms: HashMap::from([(first_room, room)]),
+            stage: 0,
+            episodes: Vec::with_capacity(n),
+            next_episode_id: 0,
+            obs: vec![0.0; n * d],
+            next_obs: vec![0.0; n * d],
+            actions: vec![[0.0; ACTION_DIM]; n],
+            rng: rand_pcg::Pcg64::seed_from_u64(seed ^ 0xac7_0e),
+            seed,
+            logger,
+            counters: LoopCounters { min_policy_version: u64::MAX, ..Default::default() },
+            cfg,
+        };
+        let warmup = this.source.latest().is_none_or(|v| v.warmup);
+        for i in 0..n {
+            let info = this.new_episode(i, warmup)?;
+            this.episodes.push(info);
+        }
+        this.envs.write_obs(&mut this.obs);
+        Ok(this)
+    }
+
+    /// Counters so far.
+    pub fn counters(&self) -> LoopCounters {
+        let mut c = self.counters.clone();
+        if c.min_policy_version == u64::MAX {
+            c.min_policy_version = 0;
+        }
+        c
+    }
+
+    /// The adder (to flush or inspect it).
+    pub fn adder_mut(&mut self) -> &mut A {
+        &mut self.adder
+    }
+
+    /// Finishes: flushes the adder and closes the episode log.
+    pub fn finish(mut self) -> anyhow::Result<(A, LoopCounters)> {
+        self.adder.flush()?;
+        if let Some(l) = self.logger.take() {
+            l.close()?;
+        }
+        let c = self.counters();
+        Ok((self.adder, c))
+    }
+
+    /// Runs until the variables say stop or `keep_going` returns false.
+    pub fn run(&mut self, mut keep_going: impl FnMut(&LoopCounters) -> bool) -> anyhow::Result<()> {
+        while keep_going(&self.counters) {
+            if !self.step()? {
+                break;
+            }
+        }
+        Ok(())
+    }
+
+    fn room(&mut self, name: &str) -> anyhow::Result<Arc<Room>> {
+        if let Some(r) = self.rooms.get(name) {
+            return Ok(r.clone());
+        }
+        let r = Room::builtin(name)?;
+        self.rooms.insert(name.to_string(), r.clone());
+        Ok(r)
+    }
+
+    /// Starts a new episode in environment `i` (already reset or fresh) and logs its start.
+    fn new_episode(&mut self, i: usize, warmup: bool) -> anyhow::Result<EpisodeInfo> {
+        let id = self.next_episode_id;
+        self.next_episode_id += 1;
+        let driver = if warmup { Driver::Pid } else { Driver::Policy };
+        let mut logged = false;
+        if let Some(l) = self.logger.as_mut() {
+            let env = &self.envs.envs()[i];
+            logged = l.maybe_begin(i, id, env, &self.cfg)?;
+        }
+        Ok(EpisodeInfo { id, stage: self.stage, driver, logged })
+    }
+
+    /// One step of every environment. Returns false when the learner says stop.
+    pub fn step(&mut self) -> anyhow::Result<bool> {
+        let vars = self.source.latest();
+        if let Some(v) = &vars {
+            if v.stop {
+                return Ok(false);
+            }
+            if v.version > self.policy.version()
+                && self.policy.update(v.version, &v.policy, &self.cfg.network, self.cfg.env.lidar.beams)?
+            {
+                self.counters.weight_updates += 1;
+            }
+            if v.stage != self.stage {
+                let room = self.room(&v.room)?;
+                tracing::info!(actor = %self.actor_name, stage = v.stage, room = %v.room, "switching stage");
+                self.stage = v.stage;
+                for env in self.envs.envs_mut() {
+                    env.set_room(room.clone());
+                }
+            }
+        }
+        let warmup = vars.as_ref().is_none_or(|v| v.warmup);
+        let version = self.policy.version();
+        self.choose_actions()?;
+
+        let commands: Vec<(f64, f64)> =
+            self.actions.iter().map(|a| action_to_velocity(*a, &self.cfg.env)).collect();
+        let outcomes = self.envs.step(&commands);
+        self.envs.write_obs(&mut self.next_obs);
+        let d = self.cfg.obs_dim();
+        for (i, out) in outcomes.iter().enumerate() {
+            let info = self.episodes[i].clone();
+            let acted_version = if info.driver == Driver::Pid { 0 } else { version };
+            let terminated = out.done.is_some_and(|o| o.is_terminal());
+            let truncated = out.done == Some(Outcome::Timeout);
+            self.adder.add(
+                &self.obs[i * d..(i + 1) * d],
+                self.actions[i],
+                out.reward,
+                &self.next_obs[i * d..(i + 1) * d],
+                terminated,
+                truncated,
+                acted_version,
+            )?;
+            self.counters.env_steps += 1;
+            if info.driver == Driver::Policy {
+                self.counters.min_policy_version = self.counters.min_policy_version.min(acted_version);
+                self.counters.max_policy_version = self.counters.max_policy_version.max(acted_version);
+            }
+            if info.logged {
+                let env = &self.envs.envs()[i];
+                if let Some(l) = self.logger.as_mut() {
+                    l.log_step(i, env, commands[i], self.actions[i], out.reward)?;
+                }
+            }
+            if let Some(outcome) = out.done {
+                let env = &self.envs.envs()[i];
+                let stats = EpisodeStats {
+                    env_index: i as u32,
+                    stage: info.stage,
+                    room: env.room().name().to_string(),
+                    outcome,
+                    steps: env.steps(),
+                    episode_return: env.episode_return() as f32,
+                    policy_version: acted_version,
+                    warmup: info.driver == Driver::Pid,
+                };
+                if info.logged {
+                    let summary = dvnav_proto::EpisodeSummary {
+                        episode_id: info.id,
+                        actor: self.actor_name.clone(),
+                        actor_id: self.actor_id,
+                        stage: info.stage,
+                        room: stats.room.clone(),
+                        seed: self.seed,
+                        footprint: format!("circle r={}", self.cfg.env.robot_radius),
+                        mu: 1.0,
+                        outcome: outcome.to_proto() as i32,
+                        steps: stats.steps,
+                        episode_return: env.episode_return(),
+                        score: score(outcome, stats.steps, self.cfg.env.max_steps),
+                        policy_version: acted_version,
+                        warmup: stats.warmup,
+                        start_x: env.start().x,
+                        start_y: env.start().y,
+                        goal_x: env.goal()[0],
+                        goal_y: env.goal()[1],
+                        env_index: i as u32,
+                        ..Default::default()
+                    };
+                    if let Some(l) = self.logger.as_mut() {
+                        l.end(i, summary)?;
+                    }
+                    self.counters.logged_episodes += 1;
+                }
+                self.counters.episodes += 1;
+                match outcome {
+                    Outcome::Success => self.counters.successes += 1,
+                    Outcome::Collision => self.counters.collisions += 1,
+                    Outcome::Timeout => self.counters.timeouts += 1,
+                }
+                if stats.warmup {
+                    self.counters.warmup_episodes += 1;
+                }
+                self.adder.add_episode(stats)?;
+                self.envs.envs_mut()[i].reset();
+                self.episodes[i] = self.new_episode(i, warmup)?;
+                self.envs.envs()[i].write_obs(&mut self.next_obs[i * d..(i + 1) * d]);
+            }
+        }
+        std::mem::swap(&mut self.obs, &mut self.next_obs);
+        Ok(true)
+    }
+
+    /// Fills `self.actions`: the PID controller for warm-up episodes, a sample from the policy
+    /// (one batched forward pass) for the others.
+    fn choose_actions(&mut self) -> anyhow::Result<()> {
+        let d = self.cfg.obs_dim();
+        let beams = self.cfg.env.lidar.beams;
+        let n = self.envs.len();
+        let any_policy = self.episodes.iter().any(|e| e.driver == Driver::Policy);
+        let policy_actions = match (any_policy, self.policy.actor()) {
+            (true, Some(actor)) => {
+                let obs = Tensor::from_slice(&self.obs, (n, d), &Device::Cpu)?;
+                let eps: Vec<f32> =
+                    (0..n * ACTION_DIM).map(|_| StandardNormal.sample(&mut self.rng)).collect();
+                let eps = Tensor::from_vec(eps, (n, ACTION_DIM), &Device::Cpu)?;
+                let s = actor.sample_with_noise(&obs, &eps)?;
+                Some(s.action.to_vec2::<f32>()?)
+            }
+            _ => None,
+        };
+        for i in 0..n {
+            let o = &self.obs[i * d..(i + 1) * d];
+            self.actions[i] = match (self.episodes[i].driver, &policy_actions) {
+                (Driver::Policy, Some(acts)) => [acts[i][0], acts[i][1]],
+                // PID episodes, and policy episodes before any weights arrived.
+                _ => {
+                    let (v, w) = pid_velocity(
+                        o[beams + GOAL_DISTANCE] as f64,
+                        o[beams + GOAL_ANGLE] as f64,
+                        &self.cfg.warmup,
+                        &self.cfg.env,
+                    );
+                    velocity_to_action(v, w, &self.cfg.env)
+                }
+            };
+        }
+        Ok(())
+    }
+}

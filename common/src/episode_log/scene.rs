@@ -1,0 +1,246 @@
+//! The `/scene` message: a room, its goal and the robot's footprint as Foxglove scene entities.
+//!
+//! The room is 2-D; the scene extrudes it to a low 3-D model so Foxglove's 3D panel shows it from
+//! any angle. World entities live in frame `world` (the room's frame, metres); the footprint lives
+//! in frame `robot`, which `/tf` moves, so it follows the robot without per-step updates.
+//!
+//! One full scene goes out at the start of each episode and deletes everything before it. Because
+//! it is complete, Foxglove's seek (which replays the latest message of each topic) always shows
+//! the right room.
+
+use foxglove::messages::{
+    Color, CubePrimitive, CylinderPrimitive, LinePrimitive, Point3, Pose, Quaternion, SceneEntity,
+    SceneEntityDeletion, SceneUpdate, SpherePrimitive, Timestamp, TriangleListPrimitive, Vector3,
+    line_primitive, scene_entity_deletion,
+};
+
+use super::EpisodeStart;
+use crate::sim::{ObstacleSpec, Point};
+
+/// Frame of the room (parent of `/tf`).
+pub(crate) const WORLD_FRAME: &str = "world";
+/// Frame of the robot's axle centre, x ahead (child of `/tf`, frame of `/scan`).
+pub(crate) const ROBOT_FRAME: &str = "robot";
+
+/// Drawn height of walls (m); display only.
+const WALL_HEIGHT: f64 = 0.5;
+/// Drawn height of obstacles (m); display only.
+const OBSTACLE_HEIGHT: f64 = 0.4;
+/// Drawn height of the robot's footprint (m); display only.
+const ROBOT_HEIGHT: f64 = 0.15;
+/// Diameter of the goal marker (m); a marker, not the goal tolerance.
+const GOAL_MARKER_DIAMETER: f64 = 0.2;
+
+const WALL_COLOR: Color = Color {
+    r: 0.45,
+    g: 0.45,
+    b: 0.5,
+    a: 1.0,
+};
+const OBSTACLE_COLOR: Color = Color {
+    r: 0.75,
+    g: 0.45,
+    b: 0.2,
+    a: 0.85,
+};
+const GOAL_COLOR: Color = Color {
+    r: 0.1,
+    g: 0.8,
+    b: 0.25,
+    a: 0.9,
+};
+const ROBOT_COLOR: Color = Color {
+    r: 0.2,
+    g: 0.45,
+    b: 0.95,
+    a: 0.6,
+};
+const HEADING_COLOR: Color = Color {
+    r: 1.0,
+    g: 1.0,
+    b: 1.0,
+    a: 1.0,
+};
+
+/// Rotation by `yaw` (rad) about +z.
+pub(crate) fn yaw_quaternion(yaw: f64) -> Quaternion {
+    let half = 0.5 * yaw;
+    Quaternion {
+        x: 0.0,
+        y: 0.0,
+        z: half.sin(),
+        w: half.cos(),
+    }
+}
+
+/// A pose at (x, y, z) rotated by `yaw` about +z.
+fn pose(x: f64, y: f64, z: f64, yaw: f64) -> Pose {
+    Pose {
+        position: Some(Vector3 { x, y, z }),
+        orientation: Some(yaw_quaternion(yaw)),
+    }
+}
+
+fn size(x: f64, y: f64, z: f64) -> Option<Vector3> {
+    Some(Vector3 { x, y, z })
+}
+
+fn point(p: Point, z: f64) -> Point3 {
+    Point3 {
+        x: p[0],
+        y: p[1],
+        z,
+    }
+}
+
+fn entity(id: &str, frame: &str, timestamp: Timestamp) -> SceneEntity {
+    SceneEntity {
+        timestamp: Some(timestamp),
+        frame_id: frame.to_string(),
+        id: id.to_string(),
+        ..Default::default()
+    }
+}
+
+/// The four walls as boxes just outside ±side/2; the top and bottom walls also cover the corners.
+fn walls(side: f64, thickness: f64, timestamp: Timestamp) -> SceneEntity {
+    let h = WALL_HEIGHT;
+    let off = 0.5 * (side + thickness);
+    let long = side + 2.0 * thickness;
+    let cube = |x: f64, y: f64, sx: f64, sy: f64| CubePrimitive {
+        pose: Some(pose(x, y, 0.5 * h, 0.0)),
+        size: size(sx, sy, h),
+        color: Some(WALL_COLOR),
+    };
+    SceneEntity {
+        cubes: vec![
+            cube(0.0, off, long, thickness),
+            cube(0.0, -off, long, thickness),
+            cube(off, 0.0, thickness, side),
+            cube(-off, 0.0, thickness, side),
+        ],
+        ..entity("walls", WORLD_FRAME, timestamp)
+    }
+}
+
+/// A convex polygon (counter-clockwise) as a closed prism: a fan-triangulated top face and two
+/// triangles per side. Fewer than three points draw nothing.
+fn prism(points: &[Point], h: f64) -> TriangleListPrimitive {
+    let n = points.len();
+    let mut tri = Vec::new();
+    if n >= 3 {
+        tri.reserve(3 * (n - 2) + 6 * n);
+        for i in 1..n - 1 {
+            tri.extend([
+                point(points[0], h),
+                point(points[i], h),
+                point(points[i + 1], h),
+            ]);
+        }
+        for i in 0..n {
+            let (a, b) = (points[i], points[(i + 1) % n]);
+            tri.extend([point(a, 0.0), point(b, 0.0), point(b, h)]);
+            tri.extend([point(a, 0.0), point(b, h), point(a, h)]);
+        }
+    }
+    TriangleListPrimitive {
+        pose: Some(pose(0.0, 0.0, 0.0, 0.0)),
+        points: tri,
+        color: Some(OBSTACLE_COLOR),
+        ..Default::default()
+    }
+}
+
+/// Boxes as cubes, discs as cylinders, convex polygons as triangle-list prisms.
+fn obstacles(list: &[ObstacleSpec], timestamp: Timestamp) -> SceneEntity {
+    let h = OBSTACLE_HEIGHT;
+    let mut e = entity("obstacles", WORLD_FRAME, timestamp);
+    for o in list {
+        match o {
+            ObstacleSpec::Box {
+                center,
+                half_extents,
+                angle,
+            } => e.cubes.push(CubePrimitive {
+                pose: Some(pose(center[0], center[1], 0.5 * h, *angle)),
+                size: size(2.0 * half_extents[0], 2.0 * half_extents[1], h),
+                color: Some(OBSTACLE_COLOR),
+            }),
+            ObstacleSpec::Circle { center, radius } => e.cylinders.push(CylinderPrimitive {
+                pose: Some(pose(center[0], center[1], 0.5 * h, 0.0)),
+                size: size(2.0 * radius, 2.0 * radius, h),
+                bottom_scale: 1.0,
+                top_scale: 1.0,
+                color: Some(OBSTACLE_COLOR),
+            }),
+            ObstacleSpec::Polygon { points } => e.triangles.push(prism(points, h)),
+        }
+    }
+    e
+}
+
+/// The footprint (a disc of the robot's radius) and a heading line, locked to frame `robot`.
+fn robot(radius: f64, timestamp: Timestamp) -> SceneEntity {
+    let h = ROBOT_HEIGHT;
+    SceneEntity {
+        frame_locked: true,
+        cylinders: vec![CylinderPrimitive {
+            pose: Some(pose(0.0, 0.0, 0.5 * h, 0.0)),
+            size: size(2.0 * radius, 2.0 * radius, h),
+            bottom_scale: 1.0,
+            top_scale: 1.0,
+            color: Some(ROBOT_COLOR),
+        }],
+        lines: vec![LinePrimitive {
+            r#type: line_primitive::Type::LineStrip as i32,
+            pose: Some(pose(0.0, 0.0, h + 0.01, 0.0)),
+            thickness: 0.03,
+            scale_invariant: false,
+            points: vec![
+                Point3 {
+                    x: 0.0,
+                    y: 0.0,
+                    z: 0.0,
+                },
+                Point3 {
+                    x: radius,
+                    y: 0.0,
+                    z: 0.0,
+                },
+            ],
+            color: Some(HEADING_COLOR),
+            ..Default::default()
+        }],
+        ..entity("robot", ROBOT_FRAME, timestamp)
+    }
+}
+
+fn goal(goal: Point, timestamp: Timestamp) -> SceneEntity {
+    let d = GOAL_MARKER_DIAMETER;
+    SceneEntity {
+        spheres: vec![SpherePrimitive {
+            pose: Some(pose(goal[0], goal[1], 0.5 * d, 0.0)),
+            size: size(d, d, d),
+            color: Some(GOAL_COLOR),
+        }],
+        ..entity("goal", WORLD_FRAME, timestamp)
+    }
+}
+
+/// The full scene of one episode: deletes every earlier entity, then adds walls, obstacles, goal
+/// and robot.
+pub(crate) fn episode_scene(ep: &EpisodeStart<'_>, timestamp: Timestamp) -> SceneUpdate {
+    SceneUpdate {
+        deletions: vec![SceneEntityDeletion {
+            timestamp: Some(timestamp),
+            r#type: scene_entity_deletion::Type::All as i32,
+            id: String::new(),
+        }],
+        entities: vec![
+            walls(ep.room.side, ep.room.wall_thickness, timestamp),
+            obstacles(&ep.room.obstacles, timestamp),
+            goal(ep.goal, timestamp),
+            robot(ep.robot_radius, timestamp),
+        ],
+    }
+}

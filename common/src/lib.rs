@@ -1,0 +1,36 @@
+//! # dvnav-common
+//!
+//! Everything the actor and the learner share, testable without a network:
+//!
+//! - [`config`]: the run configuration (one TOML file, strict loading, documented defaults).
+//! - [`sim`]: the rapier2d rooms, the robot, the LiDAR, rewards and termination, and
+//!   [`sim::VecEnv`] that steps many environments in parallel with rayon.
+//! - [`obs`]: the flat observation layout both processes agree on.
+//! - [`nets`]: the policy and critic networks (candle), one definition for acting and learning.
+//! - [`control`]: the PID warm-up controller.
+//! - [`core`]: Acme-style seams: [`core::Transition`], [`core::Adder`],
+//!   [`core::VariableSource`], so an environment loop runs against an in-process learner in
+//!   tests and against the gRPC one in production.
+//! - [`weights`]: policy weights as safetensors bytes, versioned.
+//! - [`wire`]: proto ⇄ domain conversions that validate untrusted input.
+//! - [`episode_log`]: MCAP episode logs with Foxglove schemas, and the reader behind
+//!   `dvnav inspect`.
+//!
+//! `common` never depends on the actor or the learner crates.
+//!
+//! ```
+//! use dvnav_common::config::Config;
+//! let cfg = Config::default();
+//! assert_eq!(cfg.obs_dim(), 544); // 540 beams + goal (d, φ) + (v, ω)
+//! ```
+#![warn(missing_docs)]
+
+pub mod config;
+pub mod control;
+pub mod core;
+pub mod episode_log;
+pub mod nets;
+pub mod obs;
+pub mod sim;
+pub mod weights;
+pub mod wire;

@@ -1,0 +1,77 @@
+//! The simulator: rapier2d rooms, the robot, the LiDAR, rewards and termination.
+//!
+//! - [`RoomSpec`] / [`ObstacleSpec`]: rooms as plain data (serde), including the training
+//!   layout [`RoomSpec::training`].
+//! - [`Room`]: one room's static geometry behind rapier2d's query pipeline (ray casts, overlap
+//!   tests); built once and shared as `Arc<Room>`.
+//! - [`Lidar`]: the planar range finder at the robot's axle centre.
+//! - [`NavEnv`]: one episode at a time for the circular meta robot with unicycle kinematics,
+//!   the paper's reward, and the flat observation of [`crate::obs`].
+//! - [`VecEnv`]: many [`NavEnv`]s stepped in parallel with rayon.
+//!
+//! There is no dynamics here: the robot is kinematic (velocity commands are followed exactly),
+//! so "physics" is collision detection and ray casting against static shapes. Motion is
+//! integrated in closed form and checked for contact at sub-steps no longer than
+//! `EnvConfig::collision_substep`, so the robot cannot pass through a thin wall however large
+//! the control period is.
+//!
+//! ```
+//! use dvnav_common::config::EnvConfig;
+//! use dvnav_common::sim::{NavEnv, Room};
+//! let room = Room::builtin("env0").unwrap();
+//! let mut env = NavEnv::new(room, &EnvConfig::default(), 7);
+//! let mut obs = vec![0.0f32; env.obs_dim()];
+//! env.write_obs(&mut obs);
+//! let out = env.step(0.5, 0.0);
+//! assert!(out.reward.is_finite());
+//! ```
+
+mod env;
+mod lidar;
+mod room;
+pub mod spec;
+mod vec_env;
+
+pub use env::{NavEnv, StepOutcome};
+pub use lidar::Lidar;
+pub use room::Room;
+pub use spec::{ObstacleSpec, Point, RoomSpec};
+pub use vec_env::VecEnv;
+
+/// A planar pose: position (m) in the room frame and heading `yaw` (rad, counter-clockwise
+/// from +x).
+#[derive(Clone, Copy, Debug, PartialEq, Default, serde::Serialize, serde::Deserialize)]
+pub struct Pose2 {
+    /// x (m).
+    pub x: f64,
+    /// y (m).
+    pub y: f64,
+    /// Heading (rad).
+    pub yaw: f64,
+}
+
+impl Pose2 {
+    /// A pose from its parts.
+    pub const fn new(x: f64, y: f64, yaw: f64) -> Pose2 {
+        Pose2 { x, y, yaw }
+    }
+
+    /// The position `[x, y]`.
+    pub const fn position(&self) -> [f64; 2] {
+        [self.x, self.y]
+    }
+
+    /// `p` (room frame) in this pose's frame: x ahead, y to the left.
+    pub fn to_local(&self, p: [f64; 2]) -> [f64; 2] {
+        let (s, c) = self.yaw.sin_cos();
+        let (dx, dy) = (p[0] - self.x, p[1] - self.y);
+        [c * dx + s * dy, -s * dx + c * dy]
+    }
+}
+
+/// `a` wrapped to (−π, π].
+pub fn wrap_angle(a: f64) -> f64 {
+    use std::f64::consts::{PI, TAU};
+    let w = a - TAU * ((a + PI) / TAU).floor(); // [−π, π)
+    if w <= -PI { w + TAU } else { w }
+}

@@ -1,0 +1,192 @@
+//! Conversions between the wire types of `dvnav-proto` and the domain types of [`crate::core`].
+//!
+//! Decoding is where untrusted input enters the learner, so [`batch_from_proto`] checks every
+//! length and value and never panics: a batch that fails any check is refused whole and never
+//! reaches the replay buffer.
+
+use crate::core::{EpisodeStats, Outcome, TransitionBatch};
+use crate::obs::ACTION_DIM;
+use dvnav_proto as pb;
+use std::fmt;
+
+/// Largest |reward| accepted; the task's rewards are bounded by r_s, r_c and the progress term.
+pub const MAX_ABS_REWARD: f32 = 1.0e3;
+/// Largest transition count in one batch.
+pub const MAX_BATCH_TRANSITIONS: usize = 65_536;
+
+/// Why a batch was refused; the message names the field.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WireError {
+    /// The offending field, e.g. `observations`.
+    pub field: &'static str,
+    /// What is wrong with it.
+    pub reason: String,
+}
+
+impl fmt::Display for WireError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "field `{}`: {}", self.field, self.reason)
+    }
+}
+
+impl std::error::Error for WireError {}
+
+fn err(field: &'static str, reason: impl Into<String>) -> WireError {
+    WireError { field, reason: reason.into() }
+}
+
+fn check_len<T>(field: &'static str, v: &[T], expect: usize) -> Result<(), WireError> {
+    if v.len() == expect {
+        Ok(())
+    } else {
+        Err(err(field, format!("has {} values, expected {expect}", v.len())))
+    }
+}
+
+fn check_finite(field: &'static str, v: &[f32]) -> Result<(), WireError> {
+    match v.iter().position(|x| !x.is_finite()) {
+        None => Ok(()),
+        Some(i) => Err(err(field, format!("value {i} is {} (NaN/Inf refused)", v[i]))),
+    }
+}
+
+/// Encodes a batch for the wire.
+pub fn batch_to_proto(batch: &TransitionBatch, actor_id: u32, sequence: u64) -> pb::TransitionBatch {
+    pb::TransitionBatch {
+        actor_id,
+        sequence,
+        count: batch.len() as u32,
+        observations: batch.observations.clone(),
+        actions: batch.actions.clone(),
+        rewards: batch.rewards.clone(),
+        next_observations: batch.next_observations.clone(),
+        terminated: batch.terminated.clone(),
+        truncated: batch.truncated.clone(),
+        policy_versions: batch.policy_versions.clone(),
+        episodes: batch.episodes.iter().map(episode_to_proto).collect(),
+    }
+}
+
+/// Encodes episode statistics.
+pub fn episode_to_proto(e: &EpisodeStats) -> pb::EpisodeStats {
+    pb::EpisodeStats {
+        env_index: e.env_index,
+        stage: e.stage,
+        room: e.room.clone(),
+        outcome: e.outcome.to_proto() as i32,
+        steps: e.steps,
+        episode_return: e.episode_return,
+        policy_version: e.policy_version,
+        warmup: e.warmup,
+    }
+}
+
+/// Decodes and validates a batch of `obs_dim`-long observations. Checks: count within bounds,
+/// every array of the right length, all floats finite, actions in [−1, 1], |reward| ≤
+/// [`MAX_ABS_REWARD`], no transition both terminated and truncated, episode outcomes known.
+pub fn batch_from_proto(msg: pb::TransitionBatch, obs_dim: usize) -> Result<TransitionBatch, WireError> {
+    let n = msg.count as usize;
+    if n > MAX_BATCH_TRANSITIONS {
+        return Err(err("count", format!("{n} exceeds the limit of {MAX_BATCH_TRANSITIONS}")));
+    }
+    check_len("observations", &msg.observations, n * obs_dim)?;
+    check_len("next_observations", &msg.next_observations, n * obs_dim)?;
+    check_len("actions", &msg.actions, n * ACTION_DIM)?;
+    check_len("rewards", &msg.rewards, n)?;
+    check_len("terminated", &msg.terminated, n)?;
+    check_len("truncated", &msg.truncated, n)?;
+    check_len("policy_versions", &msg.policy_versions, n)?;
+    check_finite("observations", &msg.observations)?;
+    check_finite("next_observations", &msg.next_observations)?;
+    check_finite("actions", &msg.actions)?;
+    check_finite("rewards", &msg.rewards)?;
+    if let Some(i) = msg.actions.iter().position(|a| a.abs() > 1.0) {
+        return Err(err("actions", format!("value {i} = {} is outside [-1, 1]", msg.actions[i])));
+    }
+    if let Some(i) = msg.rewards.iter().position(|r| r.abs() > MAX_ABS_REWARD) {
+        return Err(err("rewards", format!("value {i} = {} exceeds ±{MAX_ABS_REWARD}", msg.rewards[i])));
+    }
+    if let Some(i) = (0..n).find(|&i| msg.terminated[i] && msg.truncated[i]) {
+        return Err(err("truncated", format!("transition {i} is both terminated and truncated")));
+    }
+    let mut episodes = Vec::with_capacity(msg.episodes.len());
+    for (i, e) in msg.episodes.into_iter().enumerate() {
+        let outcome = Outcome::from_proto(e.outcome)
+            .ok_or_else(|| err("episodes", format!("episode {i} has unknown outcome {}", e.outcome)))?;
+        if !e.episode_return.is_finite() {
+            return Err(err("episodes", format!("episode {i} has a non-finite return")));
+        }
+        episodes.push(EpisodeStats {
+            env_index: e.env_index,
+            stage: e.stage,
+            room: e.room,
+            outcome,
+            steps: e.steps,
+            episode_return: e.episode_return,
+            policy_version: e.policy_version,
+            warmup: e.warmup,
+        });
+    }
+    Ok(TransitionBatch {
+        obs_dim,
+        observations: msg.observations,
+        actions: msg.actions,
+        rewards: msg.rewards,
+        next_observations: msg.next_observations,
+        terminated: msg.terminated,
+        truncated: msg.truncated,
+        policy_versions: msg.policy_versions,
+        episodes,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample() -> TransitionBatch {
+        let mut b = TransitionBatch::with_capacity(3, 2);
+        b.push(&[1.0, 2.0, 3.0], [0.5, -0.5], 0.1, &[1.5, 2.5, 3.5], false, false, 4);
+        b.push(&[1.5, 2.5, 3.5], [1.0, -1.0], -10.0, &[0.0, 0.0, 0.0], true, false, 4);
+        b.episodes.push(EpisodeStats {
+            env_index: 0,
+            stage: 0,
+            room: "env0".into(),
+            outcome: Outcome::Collision,
+            steps: 2,
+            episode_return: -9.9,
+            policy_version: 4,
+            warmup: false,
+        });
+        b
+    }
+
+    #[test]
+    fn round_trips() {
+        let b = sample();
+        assert_eq!(batch_from_proto(batch_to_proto(&b, 1, 0), 3).unwrap(), b);
+    }
+
+    #[test]
+    fn refuses_bad_batches_naming_the_field() {
+        let good = batch_to_proto(&sample(), 1, 0);
+        let mut m = good.clone();
+        m.observations.pop();
+        assert_eq!(batch_from_proto(m, 3).unwrap_err().field, "observations");
+        let mut m = good.clone();
+        m.rewards[0] = f32::NAN;
+        assert_eq!(batch_from_proto(m, 3).unwrap_err().field, "rewards");
+        let mut m = good.clone();
+        m.actions[1] = 1.5;
+        assert_eq!(batch_from_proto(m, 3).unwrap_err().field, "actions");
+        let mut m = good.clone();
+        m.count = 3;
+        assert!(batch_from_proto(m, 3).is_err());
+        let mut m = good.clone();
+        m.episodes[0].outcome = 17;
+        assert_eq!(batch_from_proto(m, 3).unwrap_err().field, "episodes");
+        let mut m = good;
+        m.count = u32::MAX;
+        assert_eq!(batch_from_proto(m, 3).unwrap_err().field, "count");
+    }
+}

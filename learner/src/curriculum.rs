@@ -1,0 +1,138 @@
+//! The room curriculum (design §4): start in the first room; when the success rate over the
+//! last `window` episodes of the current stage reaches `threshold`, move to the next room.
+//! Warm-up (PID) episodes and episodes reported from another stage do not count: the rule
+//! measures the learned policy in the current room.
+
+use dvnav_common::config::CurriculumConfig;
+use std::collections::VecDeque;
+
+/// A stage change, for logs and the run summary.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct StageChange {
+    /// The new stage index.
+    pub stage: u32,
+    /// Its room.
+    pub room: String,
+    /// Environment steps received when it happened.
+    pub env_steps: u64,
+    /// Learner updates done when it happened.
+    pub updates: u64,
+}
+
+/// Curriculum state owned by the learner.
+#[derive(Clone, Debug)]
+pub struct Curriculum {
+    cfg: CurriculumConfig,
+    stage: u32,
+    recent: VecDeque<bool>,
+    changes: Vec<StageChange>,
+}
+
+impl Curriculum {
+    /// Starts at stage 0.
+    pub fn new(cfg: CurriculumConfig) -> Self {
+        Self { cfg, stage: 0, recent: VecDeque::new(), changes: Vec::new() }
+    }
+
+    /// Current stage.
+    pub fn stage(&self) -> u32 {
+        self.stage
+    }
+
+    /// Room of the current stage.
+    pub fn room(&self) -> &str {
+        &self.cfg.rooms[self.stage as usize]
+    }
+
+    /// Success rate over the current window (0 when empty).
+    pub fn success_rate(&self) -> f64 {
+        if self.recent.is_empty() {
+            0.0
+        } else {
+            self.recent.iter().filter(|s| **s).count() as f64 / self.recent.len() as f64
+        }
+    }
+
+    /// Stage changes so far.
+    pub fn changes(&self) -> &[StageChange] {
+        &self.changes
+    }
+
+    /// Records a finished episode; returns the stage change it caused, if any.
+    pub fn record(
+        &mut self,
+        stage: u32,
+        success: bool,
+        warmup: bool,
+        env_steps: u64,
+        updates: u64,
+    ) -> Option<StageChange> {
+        if warmup || stage != self.stage {
+            return None;
+        }
+        self.recent.push_back(success);
+        while self.recent.len() > self.cfg.window {
+            self.recent.pop_front();
+        }
+        let last = self.cfg.rooms.len() as u32 - 1;
+        if self.stage < last
+            && self.recent.len() == self.cfg.window
+            && self.success_rate() >= self.cfg.threshold
+        {
+            self.stage += 1;
+            self.recent.clear();
+            let change =
+                StageChange { stage: self.stage, room: self.room().to_string(), env_steps, updates };
+            self.changes.push(change.clone());
+            return Some(change);
+        }
+        None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cfg() -> CurriculumConfig {
+        CurriculumConfig { rooms: vec!["a".into(), "b".into()], window: 4, threshold: 0.75 }
+    }
+
+    #[test]
+    fn advances_when_the_window_reaches_the_threshold() {
+        let mut c = Curriculum::new(cfg());
+        for s in [true, false, true] {
+            assert_eq!(c.record(0, s, false, 0, 0), None);
+        }
+        // Window full with 3/4 = 0.75.
+        let ch = c.record(0, true, false, 100, 7).unwrap();
+        assert_eq!((ch.stage, ch.room.as_str(), ch.env_steps), (1, "b", 100));
+        assert_eq!(c.stage(), 1);
+        // The last stage stays.
+        for _ in 0..8 {
+            assert_eq!(c.record(1, true, false, 0, 0), None);
+        }
+    }
+
+    #[test]
+    fn warmup_and_other_stages_do_not_count() {
+        let mut c = Curriculum::new(cfg());
+        for _ in 0..10 {
+            assert_eq!(c.record(0, true, true, 0, 0), None);
+            assert_eq!(c.record(1, true, false, 0, 0), None);
+        }
+        assert_eq!(c.stage(), 0);
+        assert_eq!(c.success_rate(), 0.0);
+    }
+
+    #[test]
+    fn a_failure_in_the_window_holds_the_stage() {
+        let mut c = Curriculum::new(CurriculumConfig { threshold: 1.0, ..cfg() });
+        for s in [true, true, false, true, true, true] {
+            c.record(0, s, false, 0, 0);
+        }
+        // Last four: false, true, true, true → 0.75 < 1.0 until the failure leaves the window.
+        assert_eq!(c.stage(), 0);
+        assert!(c.record(0, true, false, 0, 0).is_some());
+    }
+}

@@ -1,0 +1,31 @@
+//! # dvnav-learner
+//!
+//! The learner process: it serves the `dvnav.v1.Learner` gRPC service, puts the transitions
+//! actors stream in into a replay buffer, trains Soft Actor-Critic in candle, publishes
+//! versioned policy weights, owns the curriculum and the warm-up phase, and checkpoints.
+//!
+//! # Layout
+//! - [`state`]: [`state::LearnerState`], the domain object (registration, ingestion, counters,
+//!   curriculum, budget), testable without a network.
+//! - [`service`]: the tonic service, translating only.
+//! - [`replay`]: the replay buffer and the [`replay::Batch`] it samples.
+//! - [`rate_limiter`]: keeps updates per environment step fixed; the source of backpressure.
+//! - [`sac`]: networks, Adam, the losses ([`sac::learning`]) and [`sac::SacLearner`].
+//! - [`variable_source`]: versioned weights out to actors.
+//! - [`curriculum`]: the room curriculum rule.
+//! - [`trainer`]: the training thread. [`checkpoint`]: atomic checkpoints.
+//! - [`run`]: a whole learner process, for `dvnav learner` and `dvnav train`.
+
+pub mod bench;
+pub mod checkpoint;
+pub mod curriculum;
+pub mod rate_limiter;
+pub mod replay;
+pub mod run;
+pub mod sac;
+pub mod service;
+pub mod state;
+pub mod trainer;
+pub mod variable_source;
+
+pub use run::{LearnerOptions, LearnerSummary, run};

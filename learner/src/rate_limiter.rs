@@ -1,0 +1,189 @@
+//! Keeps the replay ratio (learner updates per environment step) fixed whatever the number of
+//! actors, like Reverb's `SampleToInsertRatio`: the trainer waits when it is ahead of the data,
+//! and ingestion waits when the data is more than `max_steps_ahead` steps ahead of training.
+//! Ingestion waiting is what pushes back on the actors: the gRPC handler stops reading, HTTP/2
+//! flow control fills, and the actors' sends block.
+
+use std::sync::{Condvar, Mutex};
+use std::time::Duration;
+use tokio::sync::watch;
+
+#[derive(Debug, Default)]
+struct State {
+    inserted: u64,
+    updates: u64,
+    closed: bool,
+}
+
+/// The shared ratio keeper between async ingestion and the trainer thread.
+#[derive(Debug)]
+pub struct RateLimiter {
+    ratio: f64,
+    learning_starts: u64,
+    max_steps_ahead: u64,
+    state: Mutex<State>,
+    trainer_wakeup: Condvar,
+    updates_tx: watch::Sender<u64>,
+}
+
+impl RateLimiter {
+    /// `ratio` updates per inserted transition once `learning_starts` transitions are in.
+    pub fn new(ratio: f64, learning_starts: u64, max_steps_ahead: u64) -> Self {
+        let (updates_tx, _) = watch::channel(0);
+        Self {
+            ratio,
+            learning_starts,
+            max_steps_ahead,
+            state: Mutex::new(State::default()),
+            trainer_wakeup: Condvar::new(),
+            updates_tx,
+        }
+    }
+
+    /// Resumes from checkpointed counters.
+    pub fn restore(&self, inserted: u64, updates: u64) {
+        let mut s = self.state.lock().expect("rate limiter lock");
+        s.inserted = inserted;
+        s.updates = updates;
+        self.updates_tx.send_replace(updates);
+    }
+
+    /// Updates allowed once `inserted` transitions have arrived.
+    pub fn updates_allowed(&self, inserted: u64) -> u64 {
+        if inserted < self.learning_starts {
+            0
+        } else {
+            ((inserted - self.learning_starts + 1) as f64 * self.ratio).floor() as u64
+        }
+    }
+
+    fn may_insert(&self, inserted: u64, updates: u64) -> bool {
+        if inserted < self.learning_starts {
+            return true;
+        }
+        // Steps inserted beyond what the updates done so far account for.
+        let covered = self.learning_starts as f64 + updates as f64 / self.ratio;
+        (inserted as f64) - covered < self.max_steps_ahead as f64
+    }
+
+    /// Waits (asynchronously) until ingestion may proceed; returns at once when closed.
+    pub async fn wait_to_insert(&self) {
+        let mut rx = self.updates_tx.subscribe();
+        loop {
+            {
+                let s = self.state.lock().expect("rate limiter lock");
+                if s.closed || self.may_insert(s.inserted, s.updates) {
+                    return;
+                }
+            }
+            if rx.changed().await.is_err() {
+                return;
+            }
+        }
+    }
+
+    /// Records inserted transitions and wakes the trainer.
+    pub fn inserted(&self, n: u64) {
+        let mut s = self.state.lock().expect("rate limiter lock");
+        s.inserted += n;
+        self.trainer_wakeup.notify_all();
+    }
+
+    /// Blocks the trainer until an update is allowed (true) or the limiter is closed (false).
+    /// Wakes at least every `tick` so the caller can check other conditions.
+    pub fn wait_to_update(&self, tick: Duration) -> bool {
+        let mut s = self.state.lock().expect("rate limiter lock");
+        loop {
+            if s.closed {
+                return false;
+            }
+            if s.updates < self.updates_allowed(s.inserted) {
+                return true;
+            }
+            let (guard, timeout) =
+                self.trainer_wakeup.wait_timeout(s, tick).expect("rate limiter lock");
+            s = guard;
+            if timeout.timed_out() && !s.closed && s.updates >= self.updates_allowed(s.inserted) {
+                return false;
+            }
+        }
+    }
+
+    /// Records one finished update and wakes waiting ingestion.
+    pub fn updated(&self) {
+        let mut s = self.state.lock().expect("rate limiter lock");
+        s.updates += 1;
+        self.updates_tx.send_replace(s.updates);
+    }
+
+    /// Releases every waiter for good (shutdown, or the end of the step budget).
+    pub fn close(&self) {
+        let mut s = self.state.lock().expect("rate limiter lock");
+        s.closed = true;
+        self.trainer_wakeup.notify_all();
+        let u = s.updates;
+        self.updates_tx.send_replace(u);
+    }
+
+    /// True once closed.
+    pub fn is_closed(&self) -> bool {
+        self.state.lock().expect("rate limiter lock").closed
+    }
+
+    /// (inserted, updates).
+    pub fn counters(&self) -> (u64, u64) {
+        let s = self.state.lock().expect("rate limiter lock");
+        (s.inserted, s.updates)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ratio_bounds_updates_by_inserted_steps() {
+        let rl = RateLimiter::new(0.5, 10, 4);
+        assert_eq!(rl.updates_allowed(9), 0);
+        assert_eq!(rl.updates_allowed(10), 0);
+        assert_eq!(rl.updates_allowed(11), 1);
+        assert_eq!(rl.updates_allowed(29), 10);
+        rl.inserted(9);
+        assert!(!rl.wait_to_update(Duration::from_millis(1)));
+        rl.inserted(3);
+        assert!(rl.wait_to_update(Duration::from_millis(1)));
+    }
+
+    #[test]
+    fn ingestion_waits_until_training_catches_up() {
+        let rl = RateLimiter::new(1.0, 10, 4);
+        assert!(rl.may_insert(0, 0));
+        assert!(rl.may_insert(13, 0));
+        assert!(!rl.may_insert(14, 0));
+        assert!(rl.may_insert(14, 1));
+    }
+
+    #[tokio::test]
+    async fn blocked_ingestion_resumes_after_updates_and_on_close() {
+        let rl = std::sync::Arc::new(RateLimiter::new(1.0, 0, 2));
+        rl.inserted(5);
+        let waiter = {
+            let rl = rl.clone();
+            tokio::spawn(async move { rl.wait_to_insert().await })
+        };
+        tokio::task::yield_now().await;
+        assert!(!waiter.is_finished());
+        for _ in 0..4 {
+            rl.updated();
+        }
+        tokio::time::timeout(Duration::from_secs(5), waiter).await.unwrap().unwrap();
+
+        rl.inserted(10);
+        let waiter = {
+            let rl = rl.clone();
+            tokio::spawn(async move { rl.wait_to_insert().await })
+        };
+        rl.close();
+        tokio::time::timeout(Duration::from_secs(5), waiter).await.unwrap().unwrap();
+    }
+}

@@ -1,0 +1,137 @@
+//! A whole learner process: state, trainer thread, gRPC server, end of run and summary.
+
+use crate::sac::{SacLearner, SacNetworks};
+use crate::service::LearnerService;
+use crate::state::{LearnerState, StatusSnapshot};
+use crate::trainer;
+use candle_core::Device;
+use dvnav_common::config::Config;
+use dvnav_proto::learner_server::LearnerServer;
+use serde::Serialize;
+use std::future::Future;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tokio::net::TcpListener;
+use tokio_stream::wrappers::TcpListenerStream;
+
+/// Largest gRPC message either side accepts. Weights of the default policy are about 1 MB and a
+/// default batch about 0.6 MB; larger networks or batches fit without touching this.
+pub const MAX_MESSAGE_BYTES: usize = 256 * 1024 * 1024;
+
+/// How long the learner waits for actors to disconnect after the step budget is reached.
+pub const ACTOR_DRAIN_TIMEOUT: Duration = Duration::from_secs(30);
+
+/// Options of a learner process beyond the config file.
+#[derive(Clone, Debug)]
+pub struct LearnerOptions {
+    /// Run directory: config, checkpoints, summary.
+    pub out_dir: PathBuf,
+    /// Shared token actors must present, if any.
+    pub token: Option<String>,
+    /// Run id (defaults to the directory name).
+    pub run_id: Option<String>,
+}
+
+/// The learner's part of `run_summary.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct LearnerSummary {
+    /// Counters at the end.
+    #[serde(flatten)]
+    pub status: StatusSnapshot,
+    /// Wall time of the learner (s).
+    pub wall_time_s: f64,
+    /// Transitions received per second of wall time.
+    pub env_steps_per_s: f64,
+    /// Updates per second of wall time.
+    pub updates_per_s: f64,
+    /// Directory of the final checkpoint.
+    pub final_checkpoint: Option<PathBuf>,
+}
+
+/// Runs a learner on `listener` until the step budget is reached and the actors have left, or
+/// until `shutdown` resolves. Writes checkpoints and `learner_summary.json` into the run dir.
+pub async fn run(
+    cfg: Config,
+    listener: TcpListener,
+    opts: LearnerOptions,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> anyhow::Result<LearnerSummary> {
+    let started = Instant::now();
+    std::fs::create_dir_all(&opts.out_dir)?;
+    std::fs::write(opts.out_dir.join("config.toml"), cfg.to_toml_string())?;
+    let run_id = opts.run_id.clone().unwrap_or_else(|| {
+        opts.out_dir.file_name().and_then(|n| n.to_str()).unwrap_or("run").to_string()
+    });
+
+    let device = Device::Cpu;
+    let nets = SacNetworks::new(&cfg, cfg.run.seed, &device)?;
+    let learner = SacLearner::new(nets, cfg.sac.clone(), device)?;
+    let state = Arc::new(LearnerState::new(
+        cfg.clone(),
+        run_id,
+        opts.token.clone(),
+        learner.policy_safetensors()?,
+    ));
+
+    let trainer = {
+        let state = state.clone();
+        let out = opts.out_dir.clone();
+        std::thread::Builder::new()
+            .name("trainer".into())
+            .spawn(move || trainer::train(state, learner, out))?
+    };
+
+    let service = LearnerServer::new(LearnerService::new(state.clone()))
+        .max_decoding_message_size(MAX_MESSAGE_BYTES)
+        .max_encoding_message_size(MAX_MESSAGE_BYTES);
+    let mut server_stop = state.shutdown_signal();
+    let server = tokio::spawn(
+        tonic::transport::Server::builder()
+            .http2_keepalive_interval(Some(Duration::from_secs(10)))
+            .add_service(service)
+            .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async move {
+                let _ = server_stop.wait_for(|s| *s).await;
+            }),
+    );
+
+    // Until the budget is reached or we are told to stop.
+    let mut done = state.done_signal();
+    let interrupted = tokio::select! {
+        _ = done.wait_for(|d| *d) => false,
+        _ = shutdown => true,
+    };
+    if interrupted {
+        tracing::info!("shutdown requested; telling actors to stop");
+        state.finish();
+    }
+    // Let actors flush their last batches and leave.
+    let deadline = Instant::now() + ACTOR_DRAIN_TIMEOUT;
+    while state.status().actors.iter().any(|a| a.connected) && Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    state.begin_shutdown();
+    let learner = tokio::task::spawn_blocking(move || trainer.join())
+        .await?
+        .map_err(|_| anyhow::anyhow!("the trainer thread panicked"))??;
+    let final_checkpoint = if learner.updates() > 0 {
+        Some(trainer::write_checkpoint(&state, &learner, &opts.out_dir)?)
+    } else {
+        None
+    };
+    server.await??;
+
+    let status = state.status();
+    let wall = started.elapsed().as_secs_f64();
+    let summary = LearnerSummary {
+        env_steps_per_s: status.transitions_received as f64 / wall,
+        updates_per_s: status.updates as f64 / wall,
+        wall_time_s: wall,
+        final_checkpoint,
+        status,
+    };
+    let path = opts.out_dir.join("learner_summary.json");
+    std::fs::write(&path, serde_json::to_vec_pretty(&summary)?)?;
+    tracing::info!(path = %path.display(), "learner finished");
+    Ok(summary)
+}

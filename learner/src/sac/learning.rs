@@ -1,0 +1,344 @@
+//! The SAC update (Haarnoja et al. 2018, 2019) as the paper writes it, one small function per
+//! equation, read top to bottom like CleanRL's `sac_continuous_action.py`.
+//!
+//! | function | equation |
+//! |---|---|
+//! | [`soft_bellman_target`] | Q̂(s,a) = r + γ(1 − d)(min_j Q_φ̂j(s′, ã′) − α log π_θ(ã′|s′)) |
+//! | [`critic_loss`] | L(φ_j) = 1/|M| Σ (Q_φj(s,a) − Q̂(s,a))², summed over j = 1, 2 |
+//! | [`actor_loss`] | L(θ) = 1/|M| Σ (α log π_θ(ã|s) − min_j Q_φj(s,ã)) + λ‖θ‖² |
+//! | [`temperature_loss`] | J(α) = 1/|M| Σ −α (log π_θ(ã|s) + H̄) (Haarnoja 2019, eq. 18) |
+//! | [`soft_update`] | φ̂ ← τ φ + (1 − τ) φ̂ |
+//!
+//! `d` is *termination* (success or collision) only: a timeout is a truncation and still
+//! bootstraps.
+
+use super::networks::{Owned, SacNetworks};
+use super::optim::Adam;
+use crate::replay::Batch;
+use candle_core::{Device, Result, Tensor, Var};
+use dvnav_common::config::SacConfig;
+use dvnav_common::nets::Critic;
+use dvnav_common::obs::ACTION_DIM;
+
+/// Q̂(s,a) = r + γ(1 − d)(min(Q̂1, Q̂2)(s′, ã′) − α log π(ã′|s′)), detached from the graph.
+pub fn soft_bellman_target(
+    reward: &Tensor,
+    terminated: &Tensor,
+    next_q1: &Tensor,
+    next_q2: &Tensor,
+    next_log_prob: &Tensor,
+    alpha: f64,
+    gamma: f64,
+) -> Result<Tensor> {
+    let soft_v = (next_q1.minimum(next_q2)? - (next_log_prob * alpha)?)?;
+    let not_done = (terminated.neg()? + 1.0)?;
+    (reward + ((not_done * soft_v)? * gamma)?)?.detach().contiguous()
+}
+
+/// Sum of the two critics' mean squared errors against the target.
+pub fn critic_loss(q1: &Tensor, q2: &Tensor, target: &Tensor) -> Result<Tensor> {
+    let l1 = (q1 - target)?.sqr()?.mean_all()?;
+    let l2 = (q2 - target)?.sqr()?.mean_all()?;
+    l1 + l2
+}
+
+/// mean(α log π(ã|s) − min(Q1, Q2)(s, ã)) + λ Σ‖W‖² over the policy's weights.
+pub fn actor_loss(
+    log_prob: &Tensor,
+    q1: &Tensor,
+    q2: &Tensor,
+    alpha: f64,
+    l2_coef: f64,
+    policy_weights: &[Tensor],
+) -> Result<Tensor> {
+    let sac = ((log_prob * alpha)? - q1.minimum(q2)?)?.mean_all()?;
+    if l2_coef == 0.0 || policy_weights.is_empty() {
+        return Ok(sac);
+    }
+    let mut l2 = policy_weights[0].sqr()?.sum_all()?;
+    for w in &policy_weights[1..] {
+        l2 = (l2 + w.sqr()?.sum_all()?)?;
+    }
+    sac + (l2 * l2_coef)?
+}
+
+/// J(α) = mean(−α (log π + H̄)), with α = exp(log α) and log π treated as a constant.
+pub fn temperature_loss(log_alpha: &Tensor, log_prob: &Tensor, target_entropy: f64) -> Result<Tensor> {
+    let alpha = log_alpha.exp()?;
+    let gap = (log_prob.detach() + target_entropy)?;
+    gap.broadcast_mul(&alpha)?.neg()?.mean_all()
+}
+
+/// Polyak averaging of a target critic towards its online critic: φ̂ ← τ φ + (1 − τ) φ̂.
+pub fn soft_update(target: &Owned<Critic>, online: &Owned<Critic>, tau: f64) -> Result<()> {
+    for ((tn, t), (on, o)) in target.named_vars().iter().zip(online.named_vars().iter()) {
+        debug_assert_eq!(tn, on);
+        t.set(&((t.as_tensor() * (1.0 - tau))? + (o.as_tensor() * tau)?)?)?;
+    }
+    Ok(())
+}
+
+/// What one update reports.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct UpdateMetrics {
+    /// L(φ1) + L(φ2).
+    pub critic_loss: f64,
+    /// L(θ) of the last policy update.
+    pub actor_loss: f64,
+    /// α after the update.
+    pub alpha: f64,
+    /// Mean of Q1 on the batch.
+    pub q_mean: f64,
+    /// −mean log π of the last policy update (an entropy estimate).
+    pub entropy: f64,
+}
+
+/// The SAC learner: networks, optimizers, and the update counter.
+pub struct SacLearner {
+    /// The networks.
+    pub nets: SacNetworks,
+    cfg: SacConfig,
+    critic_opt: Adam,
+    actor_opt: Adam,
+    alpha_opt: Adam,
+    /// Policy weight matrices (not biases) for the L2 term.
+    policy_weights: Vec<Var>,
+    target_entropy: f64,
+    updates: u64,
+    last: UpdateMetrics,
+    device: Device,
+}
+
+fn tensor(data: &[f32], shape: impl Into<candle_core::Shape>, dev: &Device) -> Result<Tensor> {
+    Tensor::from_slice(data, shape, dev)
+}
+
+impl SacLearner {
+    /// A learner over fresh or loaded networks.
+    pub fn new(nets: SacNetworks, cfg: SacConfig, device: Device) -> Result<Self> {
+        let mut critic_vars = nets.critic1.named_vars();
+        critic_vars.extend(
+            nets.critic2.named_vars().into_iter().map(|(n, v)| (format!("critic2.{n}"), v)),
+        );
+        for (n, _) in critic_vars.iter_mut().take(nets.critic1.named_vars().len()) {
+            *n = format!("critic1.{n}");
+        }
+        let actor_vars = nets.actor.named_vars();
+        let policy_weights = actor_vars
+            .iter()
+            .filter(|(n, _)| n.ends_with(".weight"))
+            .map(|(_, v)| v.clone())
+            .collect();
+        let critic_opt = Adam::new(critic_vars, cfg.critic_lr)?;
+        let actor_opt = Adam::new(actor_vars, cfg.actor_lr)?;
+        let alpha_opt = Adam::new(vec![("log_alpha".into(), nets.log_alpha.clone())], cfg.alpha_lr)?;
+        let target_entropy = cfg.target_entropy.unwrap_or(-(ACTION_DIM as f64));
+        Ok(Self {
+            nets,
+            cfg,
+            critic_opt,
+            actor_opt,
+            alpha_opt,
+            policy_weights,
+            target_entropy,
+            updates: 0,
+            last: UpdateMetrics::default(),
+            device,
+        })
+    }
+
+    /// Updates done.
+    pub fn updates(&self) -> u64 {
+        self.updates
+    }
+
+    /// The device the networks live on.
+    pub fn device(&self) -> &Device {
+        &self.device
+    }
+
+    /// One SAC update on a minibatch: both critics every call; the policy and α every
+    /// `policy_delay`-th call; the targets by Polyak averaging every call.
+    pub fn update(&mut self, batch: &Batch) -> Result<UpdateMetrics> {
+        let dev = &self.device;
+        let b = batch.size;
+        let obs = tensor(&batch.obs, (b, batch.obs_dim), dev)?;
+        let next_obs = tensor(&batch.next_obs, (b, batch.obs_dim), dev)?;
+        let actions = tensor(&batch.actions, (b, ACTION_DIM), dev)?;
+        let rewards = tensor(&batch.rewards, b, dev)?;
+        let terminated = tensor(&batch.terminated, b, dev)?;
+        let alpha = self.nets.alpha();
+        let nets = &self.nets;
+
+        // Critics.
+        let next = nets.actor.net.sample(&next_obs)?;
+        let next_action = next.action.detach();
+        let target = soft_bellman_target(
+            &rewards,
+            &terminated,
+            &nets.target1.net.forward(&next_obs, &next_action)?.detach(),
+            &nets.target2.net.forward(&next_obs, &next_action)?.detach(),
+            &next.log_prob.detach(),
+            alpha,
+            self.cfg.gamma,
+        )?;
+        let q1 = nets.critic1.net.forward(&obs, &actions)?;
+        let q2 = nets.critic2.net.forward(&obs, &actions)?;
+        let loss_q = critic_loss(&q1, &q2, &target)?;
+        self.critic_opt.step(&loss_q.backward()?)?;
+        self.last.critic_loss = scalar(&loss_q)?;
+        self.last.q_mean = scalar(&q1.mean_all()?)?;
+
+        // Policy and temperature, delayed.
+        if self.updates % self.cfg.policy_delay == 0 {
+            let pi = nets.actor.net.sample(&obs)?;
+            let q1_pi = nets.critic1.net.forward(&obs, &pi.action)?;
+            let q2_pi = nets.critic2.net.forward(&obs, &pi.action)?;
+            let weights: Vec<Tensor> =
+                self.policy_weights.iter().map(|v| v.as_tensor().clone()).collect();
+            let loss_pi =
+                actor_loss(&pi.log_prob, &q1_pi, &q2_pi, alpha, self.cfg.policy_l2, &weights)?;
+            // The backward pass also reaches the critics through Q(s, ã); only the policy's
+            // optimizer steps, so their gradients are dropped.
+            self.actor_opt.step(&loss_pi.backward()?)?;
+            self.last.actor_loss = scalar(&loss_pi)?;
+            self.last.entropy = -scalar(&pi.log_prob.mean_all()?)?;
+            if self.cfg.autotune_alpha {
+                let loss_a =
+                    temperature_loss(self.nets.log_alpha.as_tensor(), &pi.log_prob, self.target_entropy)?;
+                self.alpha_opt.step(&loss_a.backward()?)?;
+            }
+        }
+
+        soft_update(&self.nets.target1, &self.nets.critic1, self.cfg.tau)?;
+        soft_update(&self.nets.target2, &self.nets.critic2, self.cfg.tau)?;
+        self.updates += 1;
+        self.last.alpha = self.nets.alpha();
+        Ok(self.last)
+    }
+
+    /// Named tensors of everything an exact resume needs besides the counters: networks,
+    /// targets, log α and every optimizer's moments.
+    pub fn state_tensors(&self) -> Vec<(String, Tensor)> {
+        let mut out = Vec::new();
+        for (prefix, vars) in [
+            ("actor", self.nets.actor.named_vars()),
+            ("critic1", self.nets.critic1.named_vars()),
+            ("critic2", self.nets.critic2.named_vars()),
+            ("target1", self.nets.target1.named_vars()),
+            ("target2", self.nets.target2.named_vars()),
+        ] {
+            out.extend(vars.into_iter().map(|(n, v)| (format!("{prefix}.{n}"), v.as_tensor().clone())));
+        }
+        out.push(("log_alpha".into(), self.nets.log_alpha.as_tensor().clone()));
+        out.extend(self.critic_opt.state_tensors("opt.critic"));
+        out.extend(self.actor_opt.state_tensors("opt.actor"));
+        out.extend(self.alpha_opt.state_tensors("opt.alpha"));
+        out
+    }
+
+    /// Optimizer step counts (critic, actor, alpha), stored beside [`Self::state_tensors`].
+    pub fn optimizer_steps(&self) -> [u64; 3] {
+        [self.critic_opt.steps(), self.actor_opt.steps(), self.alpha_opt.steps()]
+    }
+
+    /// Restores what [`Self::state_tensors`] saved, and the counters.
+    pub fn load_state(
+        &mut self,
+        tensors: &std::collections::HashMap<String, Tensor>,
+        updates: u64,
+        optimizer_steps: [u64; 3],
+    ) -> anyhow::Result<()> {
+        for (prefix, vars) in [
+            ("actor", self.nets.actor.named_vars()),
+            ("critic1", self.nets.critic1.named_vars()),
+            ("critic2", self.nets.critic2.named_vars()),
+            ("target1", self.nets.target1.named_vars()),
+            ("target2", self.nets.target2.named_vars()),
+        ] {
+            for (n, v) in vars {
+                let key = format!("{prefix}.{n}");
+                let t = tensors
+                    .get(&key)
+                    .ok_or_else(|| anyhow::anyhow!("checkpoint lacks tensor `{key}`"))?;
+                if t.dims() != v.dims() {
+                    anyhow::bail!("checkpoint tensor `{key}` has shape {:?}, expected {:?}", t.dims(), v.dims());
+                }
+                v.set(t)?;
+            }
+        }
+        let la = tensors
+            .get("log_alpha")
+            .ok_or_else(|| anyhow::anyhow!("checkpoint lacks `log_alpha`"))?;
+        self.nets.log_alpha.set(la)?;
+        self.critic_opt.load_state("opt.critic", tensors, optimizer_steps[0])?;
+        self.actor_opt.load_state("opt.actor", tensors, optimizer_steps[1])?;
+        self.alpha_opt.load_state("opt.alpha", tensors, optimizer_steps[2])?;
+        self.updates = updates;
+        self.last.alpha = self.nets.alpha();
+        Ok(())
+    }
+
+    /// The policy's weights as safetensors bytes, for actors and `dvnav eval`.
+    pub fn policy_safetensors(&self) -> anyhow::Result<Vec<u8>> {
+        dvnav_common::nets::varmap_to_safetensors(&self.nets.actor.vars)
+    }
+
+    /// Metrics of the most recent update.
+    pub fn last_metrics(&self) -> UpdateMetrics {
+        self.last
+    }
+}
+
+fn scalar(t: &Tensor) -> Result<f64> {
+    Ok(t.to_dtype(candle_core::DType::F64)?.flatten_all()?.to_vec1::<f64>()?[0])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use candle_core::Device;
+
+    fn t(v: &[f32]) -> Tensor {
+        Tensor::new(v, &Device::Cpu).unwrap()
+    }
+
+    #[test]
+    fn target_bootstraps_only_without_termination() {
+        // r = 1, γ = 0.5, min Q' = 2, α log π' = 0.1·(−1): soft V' = 2.1.
+        let y = soft_bellman_target(
+            &t(&[1.0, 1.0]),
+            &t(&[0.0, 1.0]),
+            &t(&[2.0, 2.0]),
+            &t(&[3.0, 3.0]),
+            &t(&[-1.0, -1.0]),
+            0.1,
+            0.5,
+        )
+        .unwrap()
+        .to_vec1::<f32>()
+        .unwrap();
+        assert!((y[0] - 2.05).abs() < 1e-6 && (y[1] - 1.0).abs() < 1e-6, "{y:?}");
+    }
+
+    #[test]
+    fn losses_match_hand_computed_values() {
+        let q1 = t(&[1.0, 2.0]);
+        let q2 = t(&[0.0, 4.0]);
+        let y = t(&[1.0, 3.0]);
+        // ((0 + 1)/2) + ((1 + 1)/2) = 1.5
+        let l = critic_loss(&q1, &q2, &y).unwrap().to_scalar::<f32>().unwrap();
+        assert!((l - 1.5).abs() < 1e-6);
+        // mean(0.5·[−1, −2] − [0, 2]) = mean([−0.5, −3]) = −1.75; L2: 1e-2·(1 + 4) = 0.05
+        let w = [t(&[1.0, 2.0])];
+        let a = actor_loss(&t(&[-1.0, -2.0]), &q1, &q2, 0.5, 1e-2, &w)
+            .unwrap()
+            .to_scalar::<f32>()
+            .unwrap();
+        assert!((a + 1.7).abs() < 1e-6, "{a}");
+        // −α·mean(log π + H̄) with α = 2, log π = [−1, −3], H̄ = −2: −2·mean([−3, −5]) = 8
+        let la = t(&[2f32.ln()]);
+        let j = temperature_loss(&la, &t(&[-1.0, -3.0]), -2.0).unwrap().to_scalar::<f32>().unwrap();
+        assert!((j - 8.0).abs() < 1e-5, "{j}");
+    }
+}

@@ -1,0 +1,211 @@
+//! The tonic service: translates between wire types and [`LearnerState`] calls, and maps
+//! [`LearnerError`] to status codes in one place. No training logic lives here.
+
+use crate::state::{LearnerError, LearnerState, StatusSnapshot};
+use dvnav_common::core::Variables;
+use dvnav_proto as pb;
+use pb::learner_server::Learner;
+use std::pin::Pin;
+use std::sync::Arc;
+use tokio::sync::mpsc;
+use tokio_stream::wrappers::ReceiverStream;
+use tokio_stream::Stream;
+use tonic::{Request, Response, Status, Streaming};
+
+impl From<LearnerError> for Status {
+    fn from(e: LearnerError) -> Self {
+        let msg = e.to_string();
+        match e {
+            LearnerError::ProtocolMismatch { .. } => Status::failed_precondition(msg),
+            LearnerError::Unauthenticated => Status::unauthenticated(msg),
+            LearnerError::UnknownActor(_) => Status::invalid_argument(msg),
+            LearnerError::Malformed(_) => Status::invalid_argument(msg),
+            LearnerError::InvalidRequest(_) => Status::invalid_argument(msg),
+            LearnerError::ShuttingDown => Status::unavailable(msg),
+        }
+    }
+}
+
+/// The gRPC face of a learner.
+#[derive(Clone)]
+pub struct LearnerService {
+    state: Arc<LearnerState>,
+}
+
+impl LearnerService {
+    /// Serves `state`.
+    pub fn new(state: Arc<LearnerState>) -> Self {
+        Self { state }
+    }
+
+    fn authorize<T>(&self, req: &Request<T>) -> Result<(), Status> {
+        let presented = req
+            .metadata()
+            .get("authorization")
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.strip_prefix("Bearer "));
+        self.state.authorize(presented).map_err(Status::from)
+    }
+}
+
+/// Wire form of the variables an actor receives.
+pub fn variables_to_proto(v: &Variables) -> pb::VariablesUpdate {
+    pb::VariablesUpdate {
+        version: v.version,
+        safetensors: v.policy.as_ref().clone(),
+        assignment: Some(pb::StageAssignment { stage: v.stage, room: v.room.clone() }),
+        warmup: v.warmup,
+        stop: v.stop,
+    }
+}
+
+/// Wire form of a status snapshot.
+pub fn status_to_proto(s: &StatusSnapshot) -> pb::StatusReply {
+    pb::StatusReply {
+        run_id: s.run_id.clone(),
+        transitions_received: s.transitions_received,
+        transitions_rejected: s.transitions_rejected,
+        episodes: s.episodes,
+        updates: s.updates,
+        weight_version: s.weight_version,
+        replay_size: s.replay_size,
+        stage: s.stage,
+        success_rate: s.success_rate as f32,
+        critic_loss: s.critic_loss as f32,
+        actor_loss: s.actor_loss as f32,
+        alpha: s.alpha as f32,
+        done: s.done,
+        step_budget: s.step_budget,
+        actors: s
+            .actors
+            .iter()
+            .map(|a| pb::ActorCounters {
+                actor_id: a.actor_id,
+                actor_name: a.name.clone(),
+                transitions_received: a.transitions_received,
+                transitions_rejected: a.transitions_rejected,
+                episodes: a.episodes,
+                connected: a.connected,
+                batches: a.batches,
+            })
+            .collect(),
+    }
+}
+
+/// Resolves once the flag is true (or its sender is gone), holding no borrow across awaits.
+async fn wait_true(flag: &mut tokio::sync::watch::Receiver<bool>) {
+    let _ = flag.wait_for(|s| *s).await;
+}
+
+type BoxStream<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send + 'static>>;
+
+#[tonic::async_trait]
+impl Learner for LearnerService {
+    async fn register(
+        &self,
+        req: Request<pb::RegisterRequest>,
+    ) -> Result<Response<pb::RegisterReply>, Status> {
+        self.authorize(&req)?;
+        let r = req.into_inner();
+        let reg = self.state.register(&r.actor_name, r.protocol_version)?;
+        let cfg = self.state.config();
+        Ok(Response::new(pb::RegisterReply {
+            actor_id: reg.actor_id,
+            run_config_toml: self.state.config_toml().to_string(),
+            obs_spec: Some(pb::ObservationSpec {
+                scan_beams: cfg.env.lidar.beams as u32,
+                obs_dim: cfg.obs_dim() as u32,
+                action_dim: dvnav_common::obs::ACTION_DIM as u32,
+            }),
+            actor_seed: reg.actor_seed,
+            run_id: self.state.run_id().to_string(),
+        }))
+    }
+
+    type TransitionsStream = BoxStream<pb::BatchAck>;
+
+    async fn transitions(
+        &self,
+        req: Request<Streaming<pb::TransitionBatch>>,
+    ) -> Result<Response<Self::TransitionsStream>, Status> {
+        self.authorize(&req)?;
+        let mut inbound = req.into_inner();
+        let state = self.state.clone();
+        let (tx, rx) = mpsc::channel(16);
+        tokio::spawn(async move {
+            let mut shutdown = state.shutdown_signal();
+            let mut actor: Option<u32> = None;
+            let reason = loop {
+                let next = tokio::select! {
+                    m = inbound.message() => m,
+                    _ = wait_true(&mut shutdown) => {
+                        let _ = tx.send(Err(Status::unavailable("the learner is shutting down"))).await;
+                        break "learner shutdown".to_string();
+                    }
+                };
+                match next {
+                    Ok(Some(batch)) => {
+                        if actor.is_none() {
+                            actor = Some(batch.actor_id);
+                            state.set_connected(batch.actor_id, true);
+                        }
+                        let sequence = batch.sequence;
+                        match state.ingest(batch).await {
+                            Ok(accepted) => {
+                                if tx.send(Ok(pb::BatchAck { sequence, accepted })).await.is_err() {
+                                    break "actor went away".to_string();
+                                }
+                            }
+                            Err(e) => {
+                                let reason = e.to_string();
+                                let _ = tx.send(Err(e.into())).await;
+                                break reason;
+                            }
+                        }
+                    }
+                    Ok(None) => break "stream closed by the actor".to_string(),
+                    Err(status) => break format!("stream error: {}", status.message()),
+                }
+            };
+            if let Some(id) = actor {
+                state.set_connected(id, false);
+                tracing::info!(actor_id = id, %reason, "actor transition stream ended");
+            }
+        });
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+
+    type VariablesStream = BoxStream<pb::VariablesUpdate>;
+
+    async fn variables(
+        &self,
+        req: Request<pb::VariablesRequest>,
+    ) -> Result<Response<Self::VariablesStream>, Status> {
+        self.authorize(&req)?;
+        let mut rx = self.state.variables().subscribe();
+        let mut shutdown = self.state.shutdown_signal();
+        // Bounded: a slow actor holds at most one message in flight; `watch` coalesces the rest.
+        let (tx, out) = mpsc::channel(1);
+        tokio::spawn(async move {
+            loop {
+                let v = rx.borrow_and_update().clone();
+                if tx.send(Ok(variables_to_proto(&v))).await.is_err() {
+                    break;
+                }
+                tokio::select! {
+                    changed = rx.changed() => if changed.is_err() { break },
+                    _ = wait_true(&mut shutdown) => break,
+                }
+            }
+        });
+        Ok(Response::new(Box::pin(ReceiverStream::new(out))))
+    }
+
+    async fn status(
+        &self,
+        req: Request<pb::StatusRequest>,
+    ) -> Result<Response<pb::StatusReply>, Status> {
+        self.authorize(&req)?;
+        Ok(Response::new(status_to_proto(&self.state.status())))
+    }
+}

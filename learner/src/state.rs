@@ -1,0 +1,484 @@
+//! The learner's domain state, independent of gRPC: registration, ingestion into the replay
+//! buffer, counters per actor, the curriculum, the warm-up phase and the step budget. The gRPC
+//! service ([`crate::service`]) only translates to and from these calls.
+
+use crate::curriculum::{Curriculum, StageChange};
+use crate::rate_limiter::RateLimiter;
+use crate::replay::{Batch, ReplayBuffer};
+use crate::variable_source::VariableSource;
+use dvnav_common::config::Config;
+use dvnav_common::core::{Outcome, Variables};
+use dvnav_common::wire::{self, WireError};
+use dvnav_proto as pb;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
+use tokio::sync::watch;
+
+/// Why the learner refused a request; mapped to a gRPC status in one place.
+#[derive(Debug, thiserror::Error)]
+pub enum LearnerError {
+    /// The actor speaks another protocol version.
+    #[error("protocol version {got} is not supported; this learner speaks {expected}")]
+    ProtocolMismatch {
+        /// What the actor sent.
+        got: u32,
+        /// What the learner speaks.
+        expected: u32,
+    },
+    /// Missing or wrong shared token.
+    #[error("missing or wrong access token")]
+    Unauthenticated,
+    /// A batch from an actor id that never registered.
+    #[error("unknown actor id {0}; register first")]
+    UnknownActor(u32),
+    /// A malformed batch.
+    #[error("malformed transition batch: {0}")]
+    Malformed(#[from] WireError),
+    /// An invalid request field.
+    #[error("invalid request: {0}")]
+    InvalidRequest(String),
+    /// The learner is shutting down.
+    #[error("the learner is shutting down")]
+    ShuttingDown,
+}
+
+/// Counters of one actor.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct ActorCounters {
+    /// Actor id given at registration.
+    pub actor_id: u32,
+    /// Name the actor gave.
+    pub name: String,
+    /// Transitions accepted into the replay buffer.
+    pub transitions_received: u64,
+    /// Transitions refused (malformed batches).
+    pub transitions_rejected: u64,
+    /// Episodes reported.
+    pub episodes: u64,
+    /// Batches accepted.
+    pub batches: u64,
+    /// A transition stream is open.
+    pub connected: bool,
+    /// Registrations (more than 1 after reconnects).
+    pub registrations: u64,
+    /// Smallest and largest weight version seen on this actor's transitions (0: PID).
+    pub min_policy_version: u64,
+    /// Largest weight version seen on this actor's transitions.
+    pub max_policy_version: u64,
+    /// Episodes by outcome.
+    pub successes: u64,
+    /// Episodes that ended in a collision.
+    pub collisions: u64,
+    /// Episodes that timed out.
+    pub timeouts: u64,
+}
+
+/// What `Status` returns and the run summary is built from.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct StatusSnapshot {
+    /// Run id.
+    pub run_id: String,
+    /// Transitions accepted.
+    pub transitions_received: u64,
+    /// Transitions refused.
+    pub transitions_rejected: u64,
+    /// Episodes reported.
+    pub episodes: u64,
+    /// Learner updates done.
+    pub updates: u64,
+    /// Newest weight version.
+    pub weight_version: u64,
+    /// Transitions in the replay buffer.
+    pub replay_size: u64,
+    /// Curriculum stage.
+    pub stage: u32,
+    /// Success rate over the curriculum window.
+    pub success_rate: f64,
+    /// Last critic loss.
+    pub critic_loss: f64,
+    /// Last actor loss.
+    pub actor_loss: f64,
+    /// Temperature α.
+    pub alpha: f64,
+    /// The step budget is reached (or shutdown began).
+    pub done: bool,
+    /// The step budget.
+    pub step_budget: u64,
+    /// Per actor.
+    pub actors: Vec<ActorCounters>,
+    /// Stage changes so far.
+    pub stage_changes: Vec<StageChange>,
+    /// Every loss seen so far was finite.
+    pub losses_finite: bool,
+}
+
+#[derive(Debug)]
+struct Counters {
+    next_actor_id: u32,
+    actors: BTreeMap<u32, ActorCounters>,
+    received: u64,
+    rejected: u64,
+    episodes: u64,
+    curriculum: Curriculum,
+    metrics: crate::sac::UpdateMetrics,
+    losses_finite: bool,
+    done: bool,
+}
+
+/// What an actor gets back from registration.
+#[derive(Clone, Debug)]
+pub struct Registration {
+    /// Its id.
+    pub actor_id: u32,
+    /// Seed for its environments.
+    pub actor_seed: u64,
+}
+
+/// The learner's shared state (see the module docs).
+pub struct LearnerState {
+    cfg: Config,
+    config_toml: String,
+    run_id: String,
+    token: Option<String>,
+    replay: Mutex<ReplayBuffer>,
+    limiter: RateLimiter,
+    counters: Mutex<Counters>,
+    variables: VariableSource,
+    done_tx: watch::Sender<bool>,
+    shutdown_tx: watch::Sender<bool>,
+}
+
+impl LearnerState {
+    /// Fresh state for a run; `initial_policy` is version 1 of the weights.
+    pub fn new(cfg: Config, run_id: String, token: Option<String>, initial_policy: Vec<u8>) -> Self {
+        let obs_dim = cfg.obs_dim();
+        let curriculum = Curriculum::new(cfg.curriculum.clone());
+        let variables = VariableSource::new(Variables {
+            version: 1,
+            policy: Arc::new(initial_policy),
+            stage: 0,
+            room: curriculum.room().to_string(),
+            warmup: cfg.warmup.pid_episodes > 0,
+            stop: false,
+        });
+        Self {
+            limiter: RateLimiter::new(
+                cfg.sac.updates_per_env_step,
+                cfg.sac.learning_starts,
+                cfg.learner.max_steps_ahead,
+            ),
+            replay: Mutex::new(ReplayBuffer::new(obs_dim, cfg.replay.capacity)),
+            counters: Mutex::new(Counters {
+                next_actor_id: 0,
+                actors: BTreeMap::new(),
+                received: 0,
+                rejected: 0,
+                episodes: 0,
+                curriculum,
+                metrics: Default::default(),
+                losses_finite: true,
+                done: false,
+            }),
+            config_toml: cfg.to_toml_string(),
+            cfg,
+            run_id,
+            token,
+            variables,
+            done_tx: watch::channel(false).0,
+            shutdown_tx: watch::channel(false).0,
+        }
+    }
+
+    /// The run's configuration.
+    pub fn config(&self) -> &Config {
+        &self.cfg
+    }
+
+    /// The run id.
+    pub fn run_id(&self) -> &str {
+        &self.run_id
+    }
+
+    /// The replay-ratio keeper.
+    pub fn limiter(&self) -> &RateLimiter {
+        &self.limiter
+    }
+
+    /// Weight distribution.
+    pub fn variables(&self) -> &VariableSource {
+        &self.variables
+    }
+
+    /// Checks the shared token, when one is configured.
+    pub fn authorize(&self, presented: Option<&str>) -> Result<(), LearnerError> {
+        match &self.token {
+            None => Ok(()),
+            Some(t) if presented == Some(t.as_str()) => Ok(()),
+            Some(_) => Err(LearnerError::Unauthenticated),
+        }
+    }
+
+    /// Registers an actor.
+    pub fn register(&self, name: &str, protocol_version: u32) -> Result<Registration, LearnerError> {
+        if protocol_version != dvnav_proto::PROTOCOL_VERSION {
+            return Err(LearnerError::ProtocolMismatch {
+                got: protocol_version,
+                expected: dvnav_proto::PROTOCOL_VERSION,
+            });
+        }
+        if name.is_empty() || name.len() > 128 {
+            return Err(LearnerError::InvalidRequest("actor_name must be 1 to 128 bytes".into()));
+        }
+        if *self.shutdown_tx.borrow() {
+            return Err(LearnerError::ShuttingDown);
+        }
+        let mut c = self.counters.lock().expect("counters lock");
+        // An actor that comes back under the same name keeps its id and counters.
+        let existing = c.actors.values().find(|a| a.name == name).map(|a| a.actor_id);
+        let actor_id = existing.unwrap_or_else(|| {
+            let id = c.next_actor_id;
+            c.next_actor_id += 1;
+            id
+        });
+        let entry = c.actors.entry(actor_id).or_insert_with(|| ActorCounters {
+            actor_id,
+            name: name.to_string(),
+            min_policy_version: u64::MAX,
+            ..Default::default()
+        });
+        entry.registrations += 1;
+        tracing::info!(actor_id, name, "actor registered");
+        let actor_seed = self.cfg.run.seed.wrapping_mul(1_000_003).wrapping_add(actor_id as u64 + 1);
+        Ok(Registration { actor_id, actor_seed })
+    }
+
+    /// The config text sent to actors.
+    pub fn config_toml(&self) -> &str {
+        &self.config_toml
+    }
+
+    /// Marks an actor's transition stream open or closed.
+    pub fn set_connected(&self, actor_id: u32, connected: bool) {
+        if let Some(a) = self.counters.lock().expect("counters lock").actors.get_mut(&actor_id) {
+            a.connected = connected;
+        }
+    }
+
+    /// Validates a batch and inserts it into the replay buffer, waiting first while ingestion is
+    /// ahead of training (backpressure). Returns the transitions accepted.
+    pub async fn ingest(&self, msg: pb::TransitionBatch) -> Result<u32, LearnerError> {
+        let actor_id = msg.actor_id;
+        let claimed = msg.count as u64;
+        if !self.counters.lock().expect("counters lock").actors.contains_key(&actor_id) {
+            return Err(LearnerError::UnknownActor(actor_id));
+        }
+        let batch = match wire::batch_from_proto(msg, self.cfg.obs_dim()) {
+            Ok(b) => b,
+            Err(e) => {
+                let mut c = self.counters.lock().expect("counters lock");
+                c.rejected += claimed;
+                if let Some(a) = c.actors.get_mut(&actor_id) {
+                    a.transitions_rejected += claimed;
+                }
+                tracing::warn!(actor_id, error = %e, "refused a malformed batch");
+                return Err(e.into());
+            }
+        };
+        self.limiter.wait_to_insert().await;
+        self.replay.lock().expect("replay lock").insert(&batch);
+        let n = batch.len() as u64;
+        self.limiter.inserted(n);
+
+        let (_, updates) = self.limiter.counters();
+        let mut c = self.counters.lock().expect("counters lock");
+        c.received += n;
+        let received = c.received;
+        let a = c.actors.get_mut(&actor_id).expect("checked above");
+        a.transitions_received += n;
+        a.batches += 1;
+        a.episodes += batch.episodes.len() as u64;
+        for &v in &batch.policy_versions {
+            a.min_policy_version = a.min_policy_version.min(v);
+            a.max_policy_version = a.max_policy_version.max(v);
+        }
+        for e in &batch.episodes {
+            match e.outcome {
+                Outcome::Success => a.successes += 1,
+                Outcome::Collision => a.collisions += 1,
+                Outcome::Timeout => a.timeouts += 1,
+            }
+        }
+        for e in &batch.episodes {
+            c.episodes += 1;
+            let success = e.outcome == Outcome::Success;
+            if let Some(change) = c.curriculum.record(e.stage, success, e.warmup, received, updates) {
+                tracing::info!(stage = change.stage, room = %change.room, env_steps = received, "curriculum: next stage");
+            }
+        }
+        if received >= self.cfg.run.steps && !c.done {
+            c.done = true;
+            tracing::info!(received, budget = self.cfg.run.steps, "step budget reached; stopping actors");
+            self.done_tx.send_replace(true);
+            // Training ends with the budget; what actors still have in flight is accepted
+            // without waiting, so they can flush and leave.
+            self.limiter.close();
+        }
+        let warmup = c.episodes < self.cfg.warmup.pid_episodes;
+        let (stage, room, done) = (c.curriculum.stage(), c.curriculum.room().to_string(), c.done);
+        drop(c);
+        self.variables.set_run_state(stage, &room, warmup, done);
+        Ok(n as u32)
+    }
+
+    /// Samples a training batch.
+    pub fn sample(&self, size: usize, rng: &mut impl rand::Rng, out: &mut Batch) {
+        self.replay.lock().expect("replay lock").sample_into(size, rng, out);
+    }
+
+    /// Records the metrics of a finished update.
+    pub fn record_update(&self, m: crate::sac::UpdateMetrics) {
+        let mut c = self.counters.lock().expect("counters lock");
+        if !(m.critic_loss.is_finite() && m.actor_loss.is_finite() && m.alpha.is_finite()) {
+            c.losses_finite = false;
+        }
+        c.metrics = m;
+    }
+
+    /// Resolves when the step budget is reached.
+    pub fn done_signal(&self) -> watch::Receiver<bool> {
+        self.done_tx.subscribe()
+    }
+
+    /// Ends the run early (Ctrl-C): actors are told to stop.
+    pub fn finish(&self) {
+        self.limiter.close();
+        let mut c = self.counters.lock().expect("counters lock");
+        c.done = true;
+        let (stage, room) = (c.curriculum.stage(), c.curriculum.room().to_string());
+        drop(c);
+        self.done_tx.send_replace(true);
+        let warmup = self.variables.current().warmup;
+        self.variables.set_run_state(stage, &room, warmup, true);
+    }
+
+    /// Starts shutdown: streams end, registration is refused, waiters are released.
+    pub fn begin_shutdown(&self) {
+        self.finish();
+        self.limiter.close();
+        self.shutdown_tx.send_replace(true);
+    }
+
+    /// Resolves when shutdown begins (for stream handlers).
+    pub fn shutdown_signal(&self) -> watch::Receiver<bool> {
+        self.shutdown_tx.subscribe()
+    }
+
+    /// A consistent snapshot of every counter.
+    pub fn status(&self) -> StatusSnapshot {
+        let replay_size = self.replay.lock().expect("replay lock").len() as u64;
+        let (_, updates) = self.limiter.counters();
+        let c = self.counters.lock().expect("counters lock");
+        StatusSnapshot {
+            run_id: self.run_id.clone(),
+            transitions_received: c.received,
+            transitions_rejected: c.rejected,
+            episodes: c.episodes,
+            updates,
+            weight_version: self.variables.current().version,
+            replay_size,
+            stage: c.curriculum.stage(),
+            success_rate: c.curriculum.success_rate(),
+            critic_loss: c.metrics.critic_loss,
+            actor_loss: c.metrics.actor_loss,
+            alpha: c.metrics.alpha,
+            done: c.done,
+            step_budget: self.cfg.run.steps,
+            actors: c
+                .actors
+                .values()
+                .cloned()
+                .map(|mut a| {
+                    if a.min_policy_version == u64::MAX {
+                        a.min_policy_version = 0;
+                    }
+                    a
+                })
+                .collect(),
+            stage_changes: c.curriculum.changes().to_vec(),
+            losses_finite: c.losses_finite,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dvnav_common::core::TransitionBatch;
+
+    fn small_config() -> Config {
+        let mut cfg = Config::default();
+        cfg.run.steps = 6;
+        cfg.sac.batch_size = 2;
+        cfg.sac.learning_starts = 2;
+        cfg.replay.capacity = 16;
+        cfg.actor.batch_transitions = 2;
+        cfg.learner.max_steps_ahead = 1_000;
+        cfg.warmup.pid_episodes = 1;
+        cfg
+    }
+
+    fn batch(cfg: &Config, n: usize, actor_id: u32, seq: u64) -> pb::TransitionBatch {
+        let d = cfg.obs_dim();
+        let mut b = TransitionBatch::with_capacity(d, n);
+        for _ in 0..n {
+            b.push(&vec![1.0; d], [0.0, 0.0], 0.5, &vec![1.0; d], false, false, 1);
+        }
+        b.episodes.push(dvnav_common::core::EpisodeStats {
+            env_index: 0,
+            stage: 0,
+            room: "env0".into(),
+            outcome: Outcome::Timeout,
+            steps: 3,
+            episode_return: 1.0,
+            policy_version: 1,
+            warmup: true,
+        });
+        wire::batch_to_proto(&b, actor_id, seq)
+    }
+
+    #[tokio::test]
+    async fn counts_accepted_and_rejected_and_stops_at_the_budget() {
+        let cfg = small_config();
+        let s = LearnerState::new(cfg.clone(), "r".into(), None, vec![]);
+        let id = s.register("a", dvnav_proto::PROTOCOL_VERSION).unwrap().actor_id;
+        assert!(matches!(s.ingest(batch(&cfg, 2, 9, 0)).await, Err(LearnerError::UnknownActor(9))));
+        assert_eq!(s.ingest(batch(&cfg, 3, id, 0)).await.unwrap(), 3);
+        assert!(s.variables().current().warmup == false, "one warm-up episode was configured");
+        let mut bad = batch(&cfg, 2, id, 1);
+        bad.rewards[0] = f32::INFINITY;
+        assert!(matches!(s.ingest(bad).await, Err(LearnerError::Malformed(_))));
+        assert!(!*s.done_signal().borrow());
+        s.ingest(batch(&cfg, 3, id, 2)).await.unwrap();
+        let st = s.status();
+        assert_eq!((st.transitions_received, st.transitions_rejected, st.episodes), (6, 2, 2));
+        assert_eq!(st.actors[0].transitions_received, 6);
+        assert_eq!(st.actors[0].transitions_rejected, 2);
+        assert!(st.done && *s.done_signal().borrow());
+        assert!(s.variables().current().stop);
+    }
+
+    #[test]
+    fn refuses_other_protocol_versions_and_wrong_tokens() {
+        let s = LearnerState::new(small_config(), "r".into(), Some("t0k".into()), vec![]);
+        assert!(matches!(s.register("a", 999), Err(LearnerError::ProtocolMismatch { .. })));
+        assert!(matches!(s.authorize(None), Err(LearnerError::Unauthenticated)));
+        assert!(matches!(s.authorize(Some("x")), Err(LearnerError::Unauthenticated)));
+        assert!(s.authorize(Some("t0k")).is_ok());
+        // Same name, same id.
+        let a = s.register("a", dvnav_proto::PROTOCOL_VERSION).unwrap().actor_id;
+        let b = s.register("b", dvnav_proto::PROTOCOL_VERSION).unwrap().actor_id;
+        assert_ne!(a, b);
+        assert_eq!(s.register("a", dvnav_proto::PROTOCOL_VERSION).unwrap().actor_id, a);
+    }
+}

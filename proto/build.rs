@@ -1,0 +1,21 @@
+//! Compiles dvnav's .proto files with protox (pure Rust, no system `protoc`), generates the prost
+//! messages and the tonic service, and keeps the encoded `FileDescriptorSet` so MCAP files can
+//! embed the exact schemas that the wire uses.
+use prost::Message;
+use std::{env, path::PathBuf};
+
+const PROTOS: &[&str] = &["dvnav/v1/learner.proto", "dvnav/v1/episode.proto"];
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    for p in PROTOS {
+        println!("cargo:rerun-if-changed=proto/{p}");
+    }
+    let fds = protox::compile(PROTOS, ["proto"])?;
+    let out = PathBuf::from(env::var("OUT_DIR")?);
+    std::fs::write(out.join("dvnav_descriptor.bin"), fds.encode_to_vec())?;
+    tonic_prost_build::configure()
+        .build_server(true)
+        .build_client(true)
+        .compile_fds(fds)?;
+    Ok(())
+}

@@ -1,0 +1,23 @@
+//! dvnav's protobuf definitions, compiled once here (protox + tonic-prost-build, no system
+//! `protoc`): the learner gRPC service (`dvnav.v1.Learner`) that actors talk to, and the dvnav
+//! messages written into MCAP episode logs. Both sides of the wire and the log writer use these
+//! types, so `proto/` is the one source of truth.
+//!
+//! [`FILE_DESCRIPTOR_SET`] is the encoded `FileDescriptorSet` of every dvnav file; MCAP schemas
+//! embed it so any protobuf-aware reader (Foxglove, Python `mcap-protobuf-support`) decodes our
+//! messages without our code.
+
+/// Version of the actor ⇄ learner protocol; a learner refuses actors that speak another one.
+pub const PROTOCOL_VERSION: u32 = 1;
+
+/// Encoded `google.protobuf.FileDescriptorSet` of `dvnav/v1/*.proto`.
+pub const FILE_DESCRIPTOR_SET: &[u8] =
+    include_bytes!(concat!(env!("OUT_DIR"), "/dvnav_descriptor.bin"));
+
+/// Generated types of package `dvnav.v1`.
+#[allow(missing_docs, clippy::all)]
+pub mod v1 {
+    tonic::include_proto!("dvnav.v1");
+}
+
+pub use v1::*;

@@ -1,0 +1,113 @@
+//! Command-line definitions and dispatch.
+
+mod actor;
+mod bench;
+mod inspect;
+mod learner;
+mod train;
+
+use clap::{Parser, Subcommand};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+/// Dimension-variable mapless navigation with deep RL: distributed SAC training in rapier2d
+/// rooms, MCAP episode logs, and skill transfer to robots of other sizes.
+#[derive(Parser, Debug)]
+#[command(name = "dvnav", version, about, long_about = None)]
+pub struct Cli {
+    /// More log output (-v: debug, -vv: trace). RUST_LOG overrides.
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    pub verbose: u8,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Train on this machine: one learner plus N actor processes, supervised, with progress.
+    Train(train::TrainArgs),
+    /// Run only the learner (gRPC server, replay, SAC), for runs across machines.
+    Learner(learner::LearnerArgs),
+    /// Run only an actor that connects to a learner.
+    Actor(actor::ActorArgs),
+    /// Summarize MCAP episode logs (a file, a directory, or a run directory).
+    Inspect(inspect::InspectArgs),
+    /// Benchmarks that print figures (JSON with --json).
+    Bench(bench::BenchArgs),
+}
+
+/// Sets up logging to stderr.
+pub fn init_tracing(verbose: u8) {
+    let default = match verbose {
+        0 => "info",
+        1 => "debug",
+        _ => "trace",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(ansi)
+        .init();
+}
+
+/// Runs the chosen subcommand.
+pub fn dispatch(cli: Cli) -> anyhow::Result<ExitCode> {
+    match cli.command {
+        Command::Train(a) => train::run(a),
+        Command::Learner(a) => learner::run(a),
+        Command::Actor(a) => actor::run(a),
+        Command::Inspect(a) => inspect::run(a),
+        Command::Bench(a) => bench::run(a),
+    }
+}
+
+/// Resolves when the process gets Ctrl-C (SIGINT) or SIGTERM.
+pub async fn shutdown_signal() {
+    let ctrl_c = tokio::signal::ctrl_c();
+    #[cfg(unix)]
+    {
+        let mut term = match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(s) => s,
+            Err(_) => {
+                let _ = ctrl_c.await;
+                return;
+            }
+        };
+        tokio::select! {
+            _ = ctrl_c => {},
+            _ = term.recv() => {},
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = ctrl_c.await;
+    }
+}
+
+/// Reads a token from `--token-file` or the `DVNAV_TOKEN` environment variable (never logged).
+pub fn read_token(file: Option<&Path>) -> anyhow::Result<Option<String>> {
+    if let Some(f) = file {
+        let t = std::fs::read_to_string(f)
+            .map_err(|e| anyhow::anyhow!("cannot read token file {}: {e}", f.display()))?;
+        let t = t.trim().to_string();
+        anyhow::ensure!(!t.is_empty(), "token file {} is empty", f.display());
+        return Ok(Some(t));
+    }
+    Ok(std::env::var("DVNAV_TOKEN").ok().filter(|t| !t.trim().is_empty()).map(|t| t.trim().to_string()))
+}
+
+/// Loads `--config` or the defaults.
+pub fn load_config(path: Option<&PathBuf>) -> anyhow::Result<dvnav_common::config::Config> {
+    match path {
+        Some(p) => Ok(dvnav_common::config::Config::load(p)?),
+        None => Ok(dvnav_common::config::Config::default()),
+    }
+}
+
+/// A multi-threaded tokio runtime with few workers: the heavy work runs on its own threads.
+pub fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
+    Ok(tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?)
+}
