@@ -49,7 +49,8 @@ fn learner_and_two_actors_train_and_shut_down_cleanly() {
         .output()
         .expect("dvnav runs");
     let stderr = String::from_utf8_lossy(&result.stderr);
-    let logs = |name: &str| std::fs::read_to_string(out.join("logs").join(name)).unwrap_or_default();
+    let logs =
+        |name: &str| std::fs::read_to_string(out.join("logs").join(name)).unwrap_or_default();
     assert!(
         result.status.success(),
         "dvnav train failed: {stderr}\nlearner log:\n{}\nactor-0 log:\n{}",

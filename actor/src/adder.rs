@@ -19,7 +19,12 @@ pub struct BatchingAdder {
 impl BatchingAdder {
     /// Sends full batches of `batch_size` transitions into `tx`.
     pub fn new(obs_dim: usize, batch_size: usize, tx: mpsc::Sender<TransitionBatch>) -> Self {
-        Self { batch: TransitionBatch::with_capacity(obs_dim, batch_size), batch_size, tx, handed_over: 0 }
+        Self {
+            batch: TransitionBatch::with_capacity(obs_dim, batch_size),
+            batch_size,
+            tx,
+            handed_over: 0,
+        }
     }
 
     fn send(&mut self) -> anyhow::Result<()> {

@@ -9,7 +9,7 @@ use crate::episode_logger::EpisodeSelector;
 use candle_core::{Device, Tensor};
 use dvnav_common::config::Config;
 use dvnav_common::control::{action_to_velocity, pid_velocity, velocity_to_action};
-use dvnav_common::core::{score, Adder, EpisodeStats, Outcome, VariableSource};
+use dvnav_common::core::{Adder, EpisodeStats, Outcome, VariableSource, score};
 use dvnav_common::obs::{ACTION_DIM, GOAL_ANGLE, GOAL_DISTANCE};
 use dvnav_common::sim::{Room, VecEnv};
 use dvnav_common::weights::PolicyHandle;
@@ -95,7 +95,8 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
         let first_room = cfg.curriculum.rooms[0].clone();
         let room = Room::builtin(&first_room)?;
         let n = cfg.actor.envs;
-        let seeds: Vec<u64> = (0..n as u64).map(|i| seed.wrapping_mul(7919).wrapping_add(i)).collect();
+        let seeds: Vec<u64> =
+            (0..n as u64).map(|i| seed.wrapping_mul(7919).wrapping_add(i)).collect();
         let envs = VecEnv::new(vec![room.clone(); n], &cfg.env, &seeds);
         let d = cfg.obs_dim();
         let mut this = Self {
@@ -112,7 +113,7 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
             obs: vec![0.0; n * d],
             next_obs: vec![0.0; n * d],
             actions: vec![[0.0; ACTION_DIM]; n],
-            rng: rand_pcg::Pcg64::seed_from_u64(seed ^ 0xac7_0e),
+            rng: rand_pcg::Pcg64::seed_from_u64(seed ^ 0x000a_c70e),
             seed,
             logger,
             counters: LoopCounters { min_policy_version: u64::MAX, ..Default::default() },
@@ -191,7 +192,12 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
                 return Ok(false);
             }
             if v.version > self.policy.version()
-                && self.policy.update(v.version, &v.policy, &self.cfg.network, self.cfg.env.lidar.beams)?
+                && self.policy.update(
+                    v.version,
+                    &v.policy,
+                    &self.cfg.network,
+                    self.cfg.env.lidar.beams,
+                )?
             {
                 self.counters.weight_updates += 1;
             }
@@ -229,8 +235,10 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
             )?;
             self.counters.env_steps += 1;
             if info.driver == Driver::Policy {
-                self.counters.min_policy_version = self.counters.min_policy_version.min(acted_version);
-                self.counters.max_policy_version = self.counters.max_policy_version.max(acted_version);
+                self.counters.min_policy_version =
+                    self.counters.min_policy_version.min(acted_version);
+                self.counters.max_policy_version =
+                    self.counters.max_policy_version.max(acted_version);
             }
             if info.logged {
                 let env = &self.envs.envs()[i];
@@ -332,5 +340,137 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
             };
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dvnav_common::core::{TransitionBatch, Variables};
+    use dvnav_common::nets::{Actor, init_seeded, varmap_to_safetensors};
+
+    /// Collects everything in memory.
+    #[derive(Default)]
+    struct VecAdder {
+        batch: TransitionBatch,
+    }
+
+    impl Adder for VecAdder {
+        fn add(
+            &mut self,
+            obs: &[f32],
+            action: [f32; ACTION_DIM],
+            reward: f32,
+            next_obs: &[f32],
+            terminated: bool,
+            truncated: bool,
+            policy_version: u64,
+        ) -> anyhow::Result<()> {
+            self.batch.obs_dim = obs.len();
+            self.batch.push(obs, action, reward, next_obs, terminated, truncated, policy_version);
+            Ok(())
+        }
+        fn add_episode(&mut self, stats: EpisodeStats) -> anyhow::Result<()> {
+            self.batch.episodes.push(stats);
+            Ok(())
+        }
+        fn flush(&mut self) -> anyhow::Result<()> {
+            Ok(())
+        }
+    }
+
+    struct Fixed(Arc<Variables>);
+
+    impl VariableSource for Fixed {
+        fn latest(&self) -> Option<Arc<Variables>> {
+            Some(self.0.clone())
+        }
+    }
+
+    fn policy_bytes(cfg: &Config) -> Vec<u8> {
+        let vm = candle_nn::VarMap::new();
+        let vb = candle_nn::VarBuilder::from_varmap(&vm, candle_core::DType::F32, &Device::Cpu);
+        Actor::new(vb, &cfg.network, cfg.env.lidar.beams).unwrap();
+        init_seeded(&vm, 5).unwrap();
+        varmap_to_safetensors(&vm).unwrap()
+    }
+
+    fn run(warmup: bool, steps: usize, seed: u64) -> (TransitionBatch, LoopCounters) {
+        let mut cfg = Config::default();
+        cfg.actor.envs = 3;
+        cfg.env.max_steps = 60;
+        let vars = Variables {
+            version: 3,
+            policy: Arc::new(policy_bytes(&cfg)),
+            stage: 0,
+            room: "env0".into(),
+            warmup,
+            stop: false,
+        };
+        let mut el = EnvironmentLoop::new(
+            cfg,
+            "t".into(),
+            0,
+            seed,
+            VecAdder::default(),
+            Fixed(Arc::new(vars)),
+            None,
+        )
+        .unwrap();
+        let mut n = 0;
+        el.run(|_| {
+            n += 1;
+            n <= steps
+        })
+        .unwrap();
+        let (adder, counters) = el.finish().unwrap();
+        (adder.batch, counters)
+    }
+
+    #[test]
+    fn transitions_chain_and_episodes_are_reported() {
+        let (b, c) = run(false, 150, 11);
+        let d = b.obs_dim;
+        assert_eq!(b.len(), 450);
+        assert_eq!(c.env_steps, 450);
+        assert!(c.episodes > 0 && b.episodes.len() as u64 == c.episodes);
+        assert!(b.policy_versions.iter().all(|&v| v == 3));
+        // Per environment (transitions interleave env 0, 1, 2, 0, …), the next observation of a
+        // step is the observation of the following step unless the episode ended.
+        for i in 0..b.len() - 3 {
+            if b.terminated[i] || b.truncated[i] {
+                continue;
+            }
+            assert_eq!(
+                &b.next_observations[i * d..(i + 1) * d],
+                &b.observations[(i + 3) * d..(i + 4) * d],
+                "transition {i}"
+            );
+        }
+        // Timeouts are truncations, never terminations; episode lengths respect T_max.
+        assert!(b.episodes.iter().all(|e| e.steps <= 60));
+        let ends = b.terminated.iter().zip(&b.truncated).filter(|(t, u)| **t || **u).count();
+        assert_eq!(ends as u64, c.episodes);
+    }
+
+    #[test]
+    fn warmup_episodes_use_the_pid_controller() {
+        let (b, c) = run(true, 40, 11);
+        assert!(b.policy_versions.iter().all(|&v| v == 0));
+        assert_eq!(c.episodes, c.warmup_episodes);
+        assert!(b.episodes.iter().all(|e| e.warmup));
+    }
+
+    #[test]
+    fn same_seed_gives_identical_transitions() {
+        let (a, _) = run(false, 80, 21);
+        let (b, _) = run(false, 80, 21);
+        let (c, _) = run(false, 80, 22);
+        let enc = |x: &TransitionBatch| {
+            use prost::Message;
+            dvnav_common::wire::batch_to_proto(x, 0, 0).encode_to_vec()
+        };
+        assert_eq!(enc(&a), enc(&b));
+        assert_ne!(enc(&a), enc(&c));
     }
 }

@@ -20,7 +20,12 @@ pub struct EpisodeSelector {
 
 impl EpisodeSelector {
     /// A selector writing into `dir`; `None` when logging is off (N = 0).
-    pub fn create(dir: &Path, prefix: &str, meta: LogMetadata, cfg: &Config) -> anyhow::Result<Option<Self>> {
+    pub fn create(
+        dir: &Path,
+        prefix: &str,
+        meta: LogMetadata,
+        cfg: &Config,
+    ) -> anyhow::Result<Option<Self>> {
         if cfg.logging.every_nth_episode == 0 {
             return Ok(None);
         }
@@ -41,8 +46,12 @@ impl EpisodeSelector {
         }
         if self.loggers[env_index].is_none() {
             let prefix = format!("{}-env{env_index}", self.prefix);
-            self.loggers[env_index] =
-                Some(EpisodeLogger::create(&self.dir, &prefix, self.meta.clone(), self.episodes_per_file)?);
+            self.loggers[env_index] = Some(EpisodeLogger::create(
+                &self.dir,
+                &prefix,
+                self.meta.clone(),
+                self.episodes_per_file,
+            )?);
         }
         Ok(self.loggers[env_index].as_mut().expect("created above"))
     }
@@ -56,7 +65,7 @@ impl EpisodeSelector {
         env: &NavEnv,
         cfg: &Config,
     ) -> anyhow::Result<bool> {
-        if id % self.every_nth != 0 {
+        if !id.is_multiple_of(self.every_nth) {
             return Ok(false);
         }
         self.logger(env_index)?.begin_episode(&EpisodeStart {
@@ -95,7 +104,11 @@ impl EpisodeSelector {
     }
 
     /// Ends the open episode with its summary.
-    pub fn end(&mut self, env_index: usize, summary: dvnav_proto::EpisodeSummary) -> anyhow::Result<()> {
+    pub fn end(
+        &mut self,
+        env_index: usize,
+        summary: dvnav_proto::EpisodeSummary,
+    ) -> anyhow::Result<()> {
         self.logger(env_index)?.end_episode(summary)
     }
 

@@ -4,7 +4,7 @@
 use crate::adder::BatchingAdder;
 use crate::environment_loop::{EnvironmentLoop, LoopCounters};
 use crate::episode_logger::EpisodeSelector;
-use crate::variable_client::{variables_from_proto, VariableClient};
+use crate::variable_client::{VariableClient, variables_from_proto};
 use dvnav_common::config::Config;
 use dvnav_common::core::TransitionBatch;
 use dvnav_common::episode_log::LogMetadata;
@@ -14,8 +14,8 @@ use pb::learner_client::LearnerClient;
 use serde::Serialize;
 use std::future::Future;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
@@ -76,10 +76,9 @@ pub struct AuthInterceptor {
 impl AuthInterceptor {
     /// An interceptor for `token`.
     pub fn new(token: Option<&str>) -> anyhow::Result<Self> {
-        let header = token
-            .map(|t| format!("Bearer {t}").parse())
-            .transpose()
-            .map_err(|_| anyhow::anyhow!("the access token contains characters not allowed in a header"))?;
+        let header = token.map(|t| format!("Bearer {t}").parse()).transpose().map_err(|_| {
+            anyhow::anyhow!("the access token contains characters not allowed in a header")
+        })?;
         Ok(Self { header })
     }
 }
@@ -182,7 +181,8 @@ pub async fn run(
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<ActorSummary> {
     let started = Instant::now();
-    let mut client = connect(&opts.learner_url, opts.token.as_deref(), opts.connect_timeout).await?;
+    let mut client =
+        connect(&opts.learner_url, opts.token.as_deref(), opts.connect_timeout).await?;
     let reply = client
         .register(pb::RegisterRequest {
             actor_name: opts.name.clone(),
@@ -247,22 +247,36 @@ pub async fn run(
     let name = opts.name.clone();
     let loop_stop = stop.clone();
     let loop_source = variables.clone();
-    let loop_result = tokio::task::spawn_blocking(move || -> anyhow::Result<(LoopCounters, String)> {
-        let adder = BatchingAdder::new(cfg.obs_dim(), cfg.actor.batch_transitions, batch_tx);
-        let mut el = EnvironmentLoop::new(cfg, name, actor_id, reply.actor_seed, adder, loop_source, logger)?;
-        let mut last_log = Instant::now();
-        el.run(|c| {
-            if last_log.elapsed() > Duration::from_secs(30) {
-                tracing::info!(env_steps = c.env_steps, episodes = c.episodes, "actor progress");
-                last_log = Instant::now();
-            }
-            !loop_stop.load(Ordering::Relaxed)
-        })?;
-        let reason = if loop_stop.load(Ordering::Relaxed) { "interrupted" } else { "learner said stop" };
-        let (_adder, counters) = el.finish()?;
-        Ok((counters, reason.to_string()))
-    })
-    .await?;
+    let loop_result =
+        tokio::task::spawn_blocking(move || -> anyhow::Result<(LoopCounters, String)> {
+            let adder = BatchingAdder::new(cfg.obs_dim(), cfg.actor.batch_transitions, batch_tx);
+            let mut el = EnvironmentLoop::new(
+                cfg,
+                name,
+                actor_id,
+                reply.actor_seed,
+                adder,
+                loop_source,
+                logger,
+            )?;
+            let mut last_log = Instant::now();
+            el.run(|c| {
+                if last_log.elapsed() > Duration::from_secs(30) {
+                    tracing::info!(
+                        env_steps = c.env_steps,
+                        episodes = c.episodes,
+                        "actor progress"
+                    );
+                    last_log = Instant::now();
+                }
+                !loop_stop.load(Ordering::Relaxed)
+            })?;
+            let reason =
+                if loop_stop.load(Ordering::Relaxed) { "interrupted" } else { "learner said stop" };
+            let (_adder, counters) = el.finish()?;
+            Ok((counters, reason.to_string()))
+        })
+        .await?;
     // The adder (and its sender) is dropped: the stream drains and closes.
     let (stream, stream_error) = stream_task.await?;
     var_task.abort();

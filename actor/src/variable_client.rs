@@ -21,10 +21,9 @@ impl VariableClient {
 
     /// Waits until the first variables have arrived.
     pub async fn wait_first(&mut self) -> anyhow::Result<()> {
-        self.rx
-            .wait_for(|v| v.is_some())
-            .await
-            .map_err(|_| anyhow::anyhow!("the variables stream ended before any weights arrived"))?;
+        self.rx.wait_for(|v| v.is_some()).await.map_err(|_| {
+            anyhow::anyhow!("the variables stream ended before any weights arrived")
+        })?;
         Ok(())
     }
 }

@@ -450,7 +450,10 @@ impl Config {
             return Err(bad("env.lidar.beams", "must be at least 2"));
         }
         if !(l.fov_deg > 0.0 && l.fov_deg <= 360.0) {
-            return Err(bad("env.lidar.fov_deg", format!("must be in (0, 360], got {}", l.fov_deg)));
+            return Err(bad(
+                "env.lidar.fov_deg",
+                format!("must be in (0, 360], got {}", l.fov_deg),
+            ));
         }
         non_negative("env.lidar.range_min", l.range_min)?;
         if !(l.range_max.is_finite() && l.range_max > l.range_min) {
@@ -487,7 +490,9 @@ impl Config {
                 format!("the convolutions do not fit a scan of {} beams", l.beams),
             ));
         }
-        if !(n.log_std_min < n.log_std_max) {
+        let log_std_ok =
+            n.log_std_min.is_finite() && n.log_std_max.is_finite() && n.log_std_min < n.log_std_max;
+        if !log_std_ok {
             return Err(bad("network.log_std_min", "must be below network.log_std_max"));
         }
 
@@ -610,6 +615,14 @@ mod tests {
         let text = cfg.to_toml_string();
         assert_eq!(Config::from_toml_str(&text).unwrap(), cfg);
         assert_eq!(cfg.network.conv_output_len(540), Some((32, 32)));
+    }
+
+    #[test]
+    fn shipped_config_files_parse_and_default_toml_matches_the_defaults() {
+        let default = include_str!("../../configs/default.toml");
+        assert_eq!(Config::from_toml_str(default).unwrap(), Config::default());
+        let paper = Config::from_toml_str(include_str!("../../configs/paper.toml")).unwrap();
+        assert_eq!((paper.sac.batch_size, paper.sac.updates_per_env_step), (256, 1.0));
     }
 
     #[test]

@@ -8,7 +8,7 @@
 //! - [`obs`]: the flat observation layout both processes agree on.
 //! - [`nets`]: the policy and critic networks (candle), one definition for acting and learning.
 //! - [`control`]: the PID warm-up controller.
-//! - [`core`]: Acme-style seams: [`core::Transition`], [`core::Adder`],
+//! - [`core`]: Acme-style seams: [`core::TransitionBatch`], [`core::Adder`],
 //!   [`core::VariableSource`], so an environment loop runs against an in-process learner in
 //!   tests and against the gRPC one in production.
 //! - [`weights`]: policy weights as safetensors bytes, versioned.

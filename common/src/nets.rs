@@ -21,7 +21,7 @@
 
 use crate::config::NetConfig;
 use crate::obs::{ACTION_DIM, EXTRA};
-use candle_core::{DType, Device, Module, Result, Tensor, D};
+use candle_core::{D, DType, Device, Module, Result, Tensor};
 use candle_nn::{Linear, VarBuilder, VarMap};
 use rand::{Rng, SeedableRng};
 
@@ -73,9 +73,8 @@ impl Conv1dUnfold {
             candle_core::bail!("conv input of {in_len} positions is shorter than kernel {kernel}");
         }
         let out_len = (in_len - kernel) / stride + 1;
-        let idx: Vec<u32> = (0..out_len)
-            .flat_map(|j| (0..kernel).map(move |k| (j * stride + k) as u32))
-            .collect();
+        let idx: Vec<u32> =
+            (0..out_len).flat_map(|j| (0..kernel).map(move |k| (j * stride + k) as u32)).collect();
         let index = Tensor::from_vec(idx, out_len * kernel, vb.device())?;
         Ok(Self { weight, bias, index, in_channels, out_channels, kernel, out_len })
     }
@@ -203,7 +202,12 @@ impl Actor {
     }
 
     /// Loads a policy from safetensors bytes (what the learner publishes).
-    pub fn from_safetensors(bytes: &[u8], cfg: &NetConfig, beams: usize, dev: &Device) -> Result<Self> {
+    pub fn from_safetensors(
+        bytes: &[u8],
+        cfg: &NetConfig,
+        beams: usize,
+        dev: &Device,
+    ) -> Result<Self> {
         let vb = VarBuilder::from_slice_safetensors(bytes, DType::F32, dev)?;
         Self::new(vb, cfg, beams)
     }
@@ -329,9 +333,8 @@ pub fn load_varmap_from_safetensors(varmap: &VarMap, bytes: &[u8]) -> anyhow::Re
     let data = varmap.data().lock().expect("varmap lock");
     let loaded = candle_core::safetensors::load_buffer(bytes, &Device::Cpu)?;
     for (name, var) in data.iter() {
-        let t = loaded
-            .get(name)
-            .ok_or_else(|| anyhow::anyhow!("weights have no tensor `{name}`"))?;
+        let t =
+            loaded.get(name).ok_or_else(|| anyhow::anyhow!("weights have no tensor `{name}`"))?;
         if t.dims() != var.dims() {
             anyhow::bail!("tensor `{name}` has shape {:?}, expected {:?}", t.dims(), var.dims());
         }
@@ -427,7 +430,8 @@ mod tests {
         let eps = Tensor::new(&[[0.7f32]], &dev).unwrap();
         let s = squashed_gaussian(&mean, &log_std, &eps).unwrap();
         let u = 0.3f64 + (-0.5f64).exp() * 0.7;
-        let expect = -0.49 / 2.0 + 0.5 - 0.5 * (2.0 * std::f64::consts::PI).ln()
+        let expect = -0.49 / 2.0 + 0.5
+            - 0.5 * (2.0 * std::f64::consts::PI).ln()
             - (1.0 - u.tanh().powi(2)).ln();
         let got = s.log_prob.to_vec1::<f32>().unwrap()[0] as f64;
         assert!((got - expect).abs() < 1e-5, "{got} vs {expect}");

@@ -51,7 +51,11 @@ fn check_finite(field: &'static str, v: &[f32]) -> Result<(), WireError> {
 }
 
 /// Encodes a batch for the wire.
-pub fn batch_to_proto(batch: &TransitionBatch, actor_id: u32, sequence: u64) -> pb::TransitionBatch {
+pub fn batch_to_proto(
+    batch: &TransitionBatch,
+    actor_id: u32,
+    sequence: u64,
+) -> pb::TransitionBatch {
     pb::TransitionBatch {
         actor_id,
         sequence,
@@ -84,7 +88,10 @@ pub fn episode_to_proto(e: &EpisodeStats) -> pb::EpisodeStats {
 /// Decodes and validates a batch of `obs_dim`-long observations. Checks: count within bounds,
 /// every array of the right length, all floats finite, actions in [−1, 1], |reward| ≤
 /// [`MAX_ABS_REWARD`], no transition both terminated and truncated, episode outcomes known.
-pub fn batch_from_proto(msg: pb::TransitionBatch, obs_dim: usize) -> Result<TransitionBatch, WireError> {
+pub fn batch_from_proto(
+    msg: pb::TransitionBatch,
+    obs_dim: usize,
+) -> Result<TransitionBatch, WireError> {
     let n = msg.count as usize;
     if n > MAX_BATCH_TRANSITIONS {
         return Err(err("count", format!("{n} exceeds the limit of {MAX_BATCH_TRANSITIONS}")));
@@ -104,15 +111,19 @@ pub fn batch_from_proto(msg: pb::TransitionBatch, obs_dim: usize) -> Result<Tran
         return Err(err("actions", format!("value {i} = {} is outside [-1, 1]", msg.actions[i])));
     }
     if let Some(i) = msg.rewards.iter().position(|r| r.abs() > MAX_ABS_REWARD) {
-        return Err(err("rewards", format!("value {i} = {} exceeds ±{MAX_ABS_REWARD}", msg.rewards[i])));
+        return Err(err(
+            "rewards",
+            format!("value {i} = {} exceeds ±{MAX_ABS_REWARD}", msg.rewards[i]),
+        ));
     }
     if let Some(i) = (0..n).find(|&i| msg.terminated[i] && msg.truncated[i]) {
         return Err(err("truncated", format!("transition {i} is both terminated and truncated")));
     }
     let mut episodes = Vec::with_capacity(msg.episodes.len());
     for (i, e) in msg.episodes.into_iter().enumerate() {
-        let outcome = Outcome::from_proto(e.outcome)
-            .ok_or_else(|| err("episodes", format!("episode {i} has unknown outcome {}", e.outcome)))?;
+        let outcome = Outcome::from_proto(e.outcome).ok_or_else(|| {
+            err("episodes", format!("episode {i} has unknown outcome {}", e.outcome))
+        })?;
         if !e.episode_return.is_finite() {
             return Err(err("episodes", format!("episode {i} has a non-finite return")));
         }

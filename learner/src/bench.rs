@@ -51,7 +51,12 @@ fn random_replay(cfg: &Config, n: usize, rng: &mut impl Rng) -> ReplayBuffer {
 }
 
 /// Times `updates` SAC updates at `batch` after `warmup` untimed ones.
-pub fn sac_updates(cfg: &Config, batch: usize, warmup: usize, updates: usize) -> anyhow::Result<LearnerBench> {
+pub fn sac_updates(
+    cfg: &Config,
+    batch: usize,
+    warmup: usize,
+    updates: usize,
+) -> anyhow::Result<LearnerBench> {
     let dev = Device::Cpu;
     let mut rng = rand_pcg::Pcg64::seed_from_u64(0);
     let replay = random_replay(cfg, 4 * batch, &mut rng);
@@ -89,8 +94,14 @@ pub fn sac_updates(cfg: &Config, batch: usize, warmup: usize, updates: usize) ->
         device: "cpu".into(),
         network: format!(
             "conv({}x{}/{})-conv({}x{}/{})-fc{}-fc{}x2",
-            n.conv1_channels, n.conv1_kernel, n.conv1_stride, n.conv2_channels, n.conv2_kernel,
-            n.conv2_stride, n.scan_features, n.hidden
+            n.conv1_channels,
+            n.conv1_kernel,
+            n.conv1_stride,
+            n.conv2_channels,
+            n.conv2_kernel,
+            n.conv2_stride,
+            n.scan_features,
+            n.hidden
         ),
         updates,
         inference_ms_batch1: latency(1)?,

@@ -73,7 +73,9 @@ pub fn list(out_dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
     let mut v: Vec<PathBuf> = std::fs::read_dir(&root)?
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| {
-            p.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with("ckpt-") && !n.ends_with(".tmp"))
+            p.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.starts_with("ckpt-") && !n.ends_with(".tmp"))
                 && p.join("meta.json").exists()
         })
         .collect();
@@ -91,7 +93,8 @@ pub fn read(
     dir: &Path,
 ) -> anyhow::Result<(CheckpointMeta, std::collections::HashMap<String, candle_core::Tensor>)> {
     let meta: CheckpointMeta = serde_json::from_slice(&std::fs::read(dir.join("meta.json"))?)?;
-    let tensors = candle_core::safetensors::load(dir.join("state.safetensors"), &candle_core::Device::Cpu)?;
+    let tensors =
+        candle_core::safetensors::load(dir.join("state.safetensors"), &candle_core::Device::Cpu)?;
     Ok((meta, tensors))
 }
 

@@ -81,8 +81,12 @@ impl Curriculum {
         {
             self.stage += 1;
             self.recent.clear();
-            let change =
-                StageChange { stage: self.stage, room: self.room().to_string(), env_steps, updates };
+            let change = StageChange {
+                stage: self.stage,
+                room: self.room().to_string(),
+                env_steps,
+                updates,
+            };
             self.changes.push(change.clone());
             return Some(change);
         }

@@ -158,7 +158,7 @@ mod tests {
             let x = b.rewards[i];
             assert_eq!(b.obs[i * 3], x);
             assert_eq!(b.next_obs[i * 3 + 2], x + 0.5);
-            assert_eq!(b.terminated[i], if (x as usize) % 2 == 0 { 1.0 } else { 0.0 });
+            assert_eq!(b.terminated[i], if (x as usize).is_multiple_of(2) { 1.0 } else { 0.0 });
         }
     }
 }

@@ -151,7 +151,12 @@ pub struct LearnerState {
 
 impl LearnerState {
     /// Fresh state for a run; `initial_policy` is version 1 of the weights.
-    pub fn new(cfg: Config, run_id: String, token: Option<String>, initial_policy: Vec<u8>) -> Self {
+    pub fn new(
+        cfg: Config,
+        run_id: String,
+        token: Option<String>,
+        initial_policy: Vec<u8>,
+    ) -> Self {
         let obs_dim = cfg.obs_dim();
         let curriculum = Curriculum::new(cfg.curriculum.clone());
         let variables = VariableSource::new(Variables {
@@ -220,7 +225,11 @@ impl LearnerState {
     }
 
     /// Registers an actor.
-    pub fn register(&self, name: &str, protocol_version: u32) -> Result<Registration, LearnerError> {
+    pub fn register(
+        &self,
+        name: &str,
+        protocol_version: u32,
+    ) -> Result<Registration, LearnerError> {
         if protocol_version != dvnav_proto::PROTOCOL_VERSION {
             return Err(LearnerError::ProtocolMismatch {
                 got: protocol_version,
@@ -249,7 +258,8 @@ impl LearnerState {
         });
         entry.registrations += 1;
         tracing::info!(actor_id, name, "actor registered");
-        let actor_seed = self.cfg.run.seed.wrapping_mul(1_000_003).wrapping_add(actor_id as u64 + 1);
+        let actor_seed =
+            self.cfg.run.seed.wrapping_mul(1_000_003).wrapping_add(actor_id as u64 + 1);
         Ok(Registration { actor_id, actor_seed })
     }
 
@@ -312,13 +322,18 @@ impl LearnerState {
         for e in &batch.episodes {
             c.episodes += 1;
             let success = e.outcome == Outcome::Success;
-            if let Some(change) = c.curriculum.record(e.stage, success, e.warmup, received, updates) {
+            if let Some(change) = c.curriculum.record(e.stage, success, e.warmup, received, updates)
+            {
                 tracing::info!(stage = change.stage, room = %change.room, env_steps = received, "curriculum: next stage");
             }
         }
         if received >= self.cfg.run.steps && !c.done {
             c.done = true;
-            tracing::info!(received, budget = self.cfg.run.steps, "step budget reached; stopping actors");
+            tracing::info!(
+                received,
+                budget = self.cfg.run.steps,
+                "step budget reached; stopping actors"
+            );
             self.done_tx.send_replace(true);
             // Training ends with the budget; what actors still have in flight is accepted
             // without waiting, so they can flush and leave.
@@ -454,7 +469,7 @@ mod tests {
         let id = s.register("a", dvnav_proto::PROTOCOL_VERSION).unwrap().actor_id;
         assert!(matches!(s.ingest(batch(&cfg, 2, 9, 0)).await, Err(LearnerError::UnknownActor(9))));
         assert_eq!(s.ingest(batch(&cfg, 3, id, 0)).await.unwrap(), 3);
-        assert!(s.variables().current().warmup == false, "one warm-up episode was configured");
+        assert!(!s.variables().current().warmup, "one warm-up episode was configured");
         let mut bad = batch(&cfg, 2, id, 1);
         bad.rewards[0] = f32::INFINITY;
         assert!(matches!(s.ingest(bad).await, Err(LearnerError::Malformed(_))));

@@ -17,7 +17,7 @@ pub fn train(
     out_dir: PathBuf,
 ) -> anyhow::Result<SacLearner> {
     let cfg = state.config().clone();
-    let mut rng = rand_pcg::Pcg64::seed_from_u64(cfg.run.seed ^ 0x5ac_1ea7);
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(cfg.run.seed ^ 0x05ac_1ea7);
     let mut batch = Batch::default();
     let limiter = state.limiter();
     loop {
@@ -32,11 +32,11 @@ pub fn train(
         limiter.updated();
         state.record_update(metrics);
         let updates = learner.updates();
-        if updates % cfg.learner.publish_every_updates == 0 {
+        if updates.is_multiple_of(cfg.learner.publish_every_updates) {
             let version = state.variables().publish_weights(learner.policy_safetensors()?);
             tracing::debug!(updates, version, "published weights");
         }
-        if updates % cfg.learner.checkpoint_every_updates == 0 {
+        if updates.is_multiple_of(cfg.learner.checkpoint_every_updates) {
             let path = write_checkpoint(&state, &learner, &out_dir)?;
             tracing::info!(updates, path = %path.display(), "checkpoint written");
         }

@@ -4,7 +4,7 @@ use clap::{Args, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-/// Measure the learner's SAC update rate and policy latency.
+/// Measure the simulator, the learner and the transport; `--json` prints one object.
 #[derive(Args, Debug)]
 pub struct BenchArgs {
     #[command(subcommand)]
@@ -13,6 +13,29 @@ pub struct BenchArgs {
 
 #[derive(Subcommand, Debug)]
 enum BenchWhat {
+    /// Environment steps/s in env0 (kinematics, collision check, full scan, reward): one
+    /// environment on one thread, and a VecEnv on all threads.
+    Env {
+        /// Steps timed per measurement.
+        #[arg(long, default_value_t = 20_000)]
+        steps: usize,
+        /// Print one JSON object.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Transitions/s from one actor stream into a learner over loopback gRPC (validation and
+    /// replay insertion included, no training).
+    Transport {
+        /// Transitions sent.
+        #[arg(long, default_value_t = 50_000)]
+        transitions: usize,
+        /// Transitions per batch.
+        #[arg(long, default_value_t = 128)]
+        batch: usize,
+        /// Print one JSON object.
+        #[arg(long)]
+        json: bool,
+    },
     /// SAC updates/s at a batch size, and policy inference latency at batch 1 and 64.
     Learner {
         /// Config whose network and SAC settings are measured (default: the defaults).
@@ -32,6 +55,33 @@ enum BenchWhat {
 
 pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
     match args.what {
+        BenchWhat::Env { steps, json } => {
+            let r = bench_env(steps)?;
+            if json {
+                println!("{r}");
+            } else {
+                println!(
+                    "env steps/s: {:.0} on 1 thread, {:.0} on {} threads ({} envs)",
+                    r["env_steps_per_s_1thread"].as_f64().unwrap_or(0.0),
+                    r["env_steps_per_s_all_threads"].as_f64().unwrap_or(0.0),
+                    r["threads"],
+                    r["envs"]
+                );
+            }
+        }
+        BenchWhat::Transport { transitions, batch, json } => {
+            let r = super::runtime()?.block_on(bench_transport(transitions, batch))?;
+            if json {
+                println!("{r}");
+            } else {
+                println!(
+                    "transport: {:.0} transitions/s ({:.1} MB/s of observations) over loopback gRPC, batch {}",
+                    r["transitions_per_s"].as_f64().unwrap_or(0.0),
+                    r["mb_per_s"].as_f64().unwrap_or(0.0),
+                    batch
+                );
+            }
+        }
         BenchWhat::Learner { config, batch, updates, json } => {
             let cfg = super::load_config(config.as_ref())?;
             let r = dvnav_learner::bench::sac_updates(&cfg, batch, 3, updates)?;
@@ -40,11 +90,136 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
             } else {
                 println!(
                     "SAC updates/s at batch {}: {:.2} ({:.1} ms/update), {} threads, {}; inference {:.2} ms (batch 1), {:.2} ms (batch 64)",
-                    r.batch, r.sac_updates_per_s, r.ms_per_update, r.threads, r.network,
-                    r.inference_ms_batch1, r.inference_ms_batch64
+                    r.batch,
+                    r.sac_updates_per_s,
+                    r.ms_per_update,
+                    r.threads,
+                    r.network,
+                    r.inference_ms_batch1,
+                    r.inference_ms_batch64
                 );
             }
         }
     }
     Ok(ExitCode::SUCCESS)
+}
+
+fn bench_env(steps: usize) -> anyhow::Result<serde_json::Value> {
+    use dvnav_common::config::Config;
+    use dvnav_common::sim::{NavEnv, Room, VecEnv};
+    use std::time::Instant;
+    let cfg = Config::default();
+    let room = Room::builtin("env0")?;
+    // A gently turning drive: long enough episodes, some collisions, like an early policy.
+    let command = |k: usize| (0.4, if (k / 20).is_multiple_of(2) { 0.6 } else { -0.6 });
+
+    let mut env = NavEnv::new(room.clone(), &cfg.env, 1);
+    let t = Instant::now();
+    for k in 0..steps {
+        let (v, w) = command(k);
+        if env.step(v, w).done.is_some() {
+            env.reset();
+        }
+    }
+    let one = steps as f64 / t.elapsed().as_secs_f64();
+
+    let threads = rayon::current_num_threads();
+    let n = 4 * threads;
+    let seeds: Vec<u64> = (0..n as u64).collect();
+    let mut venv = VecEnv::new(vec![room; n], &cfg.env, &seeds);
+    let rounds = (steps / n).max(1);
+    let t = Instant::now();
+    for k in 0..rounds {
+        let cmds = vec![command(k); n];
+        let outs = venv.step(&cmds);
+        for (i, o) in outs.iter().enumerate() {
+            if o.done.is_some() {
+                venv.envs_mut()[i].reset();
+            }
+        }
+    }
+    let all = (rounds * n) as f64 / t.elapsed().as_secs_f64();
+    Ok(serde_json::json!({
+        "env_steps_per_s_1thread": one,
+        "env_steps_per_s_all_threads": all,
+        "threads": threads,
+        "envs": n,
+        "room": "env0",
+        "beams": cfg.env.lidar.beams,
+    }))
+}
+
+async fn bench_transport(transitions: usize, batch: usize) -> anyhow::Result<serde_json::Value> {
+    use dvnav_common::config::Config;
+    use dvnav_common::core::TransitionBatch;
+    use dvnav_learner::service::LearnerService;
+    use dvnav_learner::state::LearnerState;
+    use dvnav_proto::learner_server::LearnerServer;
+    use std::sync::Arc;
+    use std::time::{Duration, Instant};
+
+    let mut cfg = Config::default();
+    // No training and no throttling: only the wire, validation and replay insertion are timed.
+    cfg.sac.learning_starts = u64::MAX / 2;
+    cfg.run.steps = u64::MAX / 2;
+    cfg.replay.capacity = transitions.max(batch);
+    let state = Arc::new(LearnerState::new(cfg.clone(), "bench".into(), None, vec![]));
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
+    let addr = listener.local_addr()?;
+    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+    let server = tokio::spawn(
+        tonic::transport::Server::builder()
+            .add_service(
+                LearnerServer::new(LearnerService::new(state.clone()))
+                    .max_decoding_message_size(dvnav_learner::run::MAX_MESSAGE_BYTES),
+            )
+            .serve_with_incoming_shutdown(
+                tokio_stream::wrappers::TcpListenerStream::new(listener),
+                async {
+                    let _ = stop_rx.await;
+                },
+            ),
+    );
+    let mut client =
+        dvnav_actor::run::connect(&format!("http://{addr}"), None, Duration::from_secs(10)).await?;
+    let id = client
+        .register(dvnav_proto::RegisterRequest {
+            actor_name: "bench".into(),
+            protocol_version: dvnav_proto::PROTOCOL_VERSION,
+            num_envs: 1,
+        })
+        .await?
+        .into_inner()
+        .actor_id;
+    let d = cfg.obs_dim();
+    let mut b = TransitionBatch::with_capacity(d, batch);
+    let obs: Vec<f32> = (0..d).map(|i| 0.5 + (i % 50) as f32 * 0.1).collect();
+    for _ in 0..batch {
+        b.push(&obs, [0.1, -0.2], 0.01, &obs, false, false, 1);
+    }
+    let n_batches = transitions.div_ceil(batch);
+    let msgs: Vec<_> =
+        (0..n_batches).map(|s| dvnav_common::wire::batch_to_proto(&b, id, s as u64)).collect();
+    let t = Instant::now();
+    let mut acks = client.transitions(tokio_stream::iter(msgs)).await?.into_inner();
+    let mut accepted = 0u64;
+    while let Some(a) = acks.message().await? {
+        accepted += a.accepted as u64;
+    }
+    let secs = t.elapsed().as_secs_f64();
+    let _ = stop_tx.send(());
+    state.begin_shutdown();
+    server.await??;
+    anyhow::ensure!(
+        accepted == (n_batches * batch) as u64,
+        "only {accepted} transitions acknowledged"
+    );
+    let bytes = accepted as f64 * (2 * d + 6) as f64 * 4.0;
+    Ok(serde_json::json!({
+        "transitions_per_s": accepted as f64 / secs,
+        "mb_per_s": bytes / secs / 1e6,
+        "transitions": accepted,
+        "batch": batch,
+        "obs_dim": d,
+    }))
 }

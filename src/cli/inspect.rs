@@ -38,7 +38,14 @@ pub fn run(args: InspectArgs) -> anyhow::Result<ExitCode> {
     println!("{} logged episodes under {}", records.len(), args.path.display());
     println!(
         "{:<16} {:>5} {:>8} {:>8} {:>9} {:>8} {:>10} {:>11}",
-        "actor", "stage", "episodes", "success", "collision", "timeout", "mean steps", "mean return"
+        "actor",
+        "stage",
+        "episodes",
+        "success",
+        "collision",
+        "timeout",
+        "mean steps",
+        "mean return"
     );
     for g in &groups {
         println!(

@@ -69,13 +69,14 @@ pub async fn shutdown_signal() {
     let ctrl_c = tokio::signal::ctrl_c();
     #[cfg(unix)]
     {
-        let mut term = match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-            Ok(s) => s,
-            Err(_) => {
-                let _ = ctrl_c.await;
-                return;
-            }
-        };
+        let mut term =
+            match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+                Ok(s) => s,
+                Err(_) => {
+                    let _ = ctrl_c.await;
+                    return;
+                }
+            };
         tokio::select! {
             _ = ctrl_c => {},
             _ = term.recv() => {},
@@ -96,7 +97,10 @@ pub fn read_token(file: Option<&Path>) -> anyhow::Result<Option<String>> {
         anyhow::ensure!(!t.is_empty(), "token file {} is empty", f.display());
         return Ok(Some(t));
     }
-    Ok(std::env::var("DVNAV_TOKEN").ok().filter(|t| !t.trim().is_empty()).map(|t| t.trim().to_string()))
+    Ok(std::env::var("DVNAV_TOKEN")
+        .ok()
+        .filter(|t| !t.trim().is_empty())
+        .map(|t| t.trim().to_string()))
 }
 
 /// Loads `--config` or the defaults.

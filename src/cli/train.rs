@@ -7,7 +7,7 @@
 
 use clap::Args;
 use dvnav_common::config::Config;
-use serde_json::{json, Value};
+use serde_json::{Value, json};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitCode, Stdio};
 use std::time::{Duration, Instant};
@@ -148,7 +148,10 @@ pub fn run(args: TrainArgs) -> anyhow::Result<ExitCode> {
                 tail(&learner_log, 20)
             );
         }
-        anyhow::ensure!(Instant::now() < deadline, "the learner did not start listening within 120 s");
+        anyhow::ensure!(
+            Instant::now() < deadline,
+            "the learner did not start listening within 120 s"
+        );
         std::thread::sleep(Duration::from_millis(50));
     };
     let url = format!("http://{addr}");
@@ -186,7 +189,8 @@ pub fn run(args: TrainArgs) -> anyhow::Result<ExitCode> {
     }
 
     let rt = super::runtime()?;
-    let mut client = rt.block_on(dvnav_actor::run::connect(&url, None, Duration::from_secs(30))).ok();
+    let mut client =
+        rt.block_on(dvnav_actor::run::connect(&url, None, Duration::from_secs(30))).ok();
     let tty = std::io::IsTerminal::is_terminal(&std::io::stderr());
     let mut last_print = Instant::now() - Duration::from_secs(3600);
     let mut forwarded = false;
@@ -202,7 +206,12 @@ pub fn run(args: TrainArgs) -> anyhow::Result<ExitCode> {
                 && let Some(st) = a.poll()
                 && !st.success()
             {
-                eprintln!("\ndvnav train: {} exited ({st}); see {}/logs/{}.log", a.name, out.display(), a.name);
+                eprintln!(
+                    "\ndvnav train: {} exited ({st}); see {}/logs/{}.log",
+                    a.name,
+                    out.display(),
+                    a.name
+                );
             }
         }
         if let Some(c) = client.as_mut()
@@ -269,7 +278,10 @@ pub fn run(args: TrainArgs) -> anyhow::Result<ExitCode> {
         out.join("run_summary.json").display()
     );
     if !learner_status.success() {
-        eprintln!("dvnav train: the learner failed ({learner_status}); its log:\n{}", tail(&learner_log, 30));
+        eprintln!(
+            "dvnav train: the learner failed ({learner_status}); its log:\n{}",
+            tail(&learner_log, 30)
+        );
         return Ok(ExitCode::FAILURE);
     }
     Ok(if clean { ExitCode::SUCCESS } else { ExitCode::FAILURE })
@@ -281,14 +293,20 @@ fn read_json(path: &Path) -> Option<Value> {
 
 /// `run_summary.json`: the learner's counters, each actor's own counts, and how each process
 /// ended.
-fn merge_summaries(out: &Path, learner: &Proc, actors: &[Proc], wall: f64) -> anyhow::Result<Value> {
+fn merge_summaries(
+    out: &Path,
+    learner: &Proc,
+    actors: &[Proc],
+    wall: f64,
+) -> anyhow::Result<Value> {
     let l = read_json(&out.join("learner_summary.json")).unwrap_or(Value::Null);
     let learner_actors = l["actors"].as_array().cloned().unwrap_or_default();
     let mut per_actor = Vec::new();
     let mut sent_total = 0u64;
     let mut all_clean = learner.status.is_some_and(|s| s.success()) && !l.is_null();
     for a in actors {
-        let s = read_json(&out.join("actors").join(&a.name).join("summary.json")).unwrap_or(Value::Null);
+        let s = read_json(&out.join("actors").join(&a.name).join("summary.json"))
+            .unwrap_or(Value::Null);
         let at_learner = learner_actors
             .iter()
             .find(|x| x["name"] == a.name.as_str())

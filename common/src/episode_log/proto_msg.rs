@@ -33,11 +33,7 @@ impl<T: DvnavMessage> Encode for Dvnav<T> {
     type Error = prost::EncodeError;
 
     fn get_schema() -> Option<Schema> {
-        Some(Schema::new(
-            T::FULL_NAME,
-            "protobuf",
-            dvnav_proto::FILE_DESCRIPTOR_SET,
-        ))
+        Some(Schema::new(T::FULL_NAME, "protobuf", dvnav_proto::FILE_DESCRIPTOR_SET))
     }
 
     fn get_message_encoding() -> String {

@@ -87,10 +87,7 @@ fn read_file(path: &Path, out: &mut Vec<EpisodeRecord>) -> Result<()> {
             continue;
         }
         match dvnav_proto::EpisodeSummary::decode(message.data.as_ref()) {
-            Ok(summary) => out.push(EpisodeRecord {
-                file: path.to_path_buf(),
-                summary,
-            }),
+            Ok(summary) => out.push(EpisodeRecord { file: path.to_path_buf(), summary }),
             Err(e) => tracing::warn!(
                 file = %path.display(),
                 sequence = message.sequence,

@@ -31,54 +31,21 @@ const ROBOT_HEIGHT: f64 = 0.15;
 /// Diameter of the goal marker (m); a marker, not the goal tolerance.
 const GOAL_MARKER_DIAMETER: f64 = 0.2;
 
-const WALL_COLOR: Color = Color {
-    r: 0.45,
-    g: 0.45,
-    b: 0.5,
-    a: 1.0,
-};
-const OBSTACLE_COLOR: Color = Color {
-    r: 0.75,
-    g: 0.45,
-    b: 0.2,
-    a: 0.85,
-};
-const GOAL_COLOR: Color = Color {
-    r: 0.1,
-    g: 0.8,
-    b: 0.25,
-    a: 0.9,
-};
-const ROBOT_COLOR: Color = Color {
-    r: 0.2,
-    g: 0.45,
-    b: 0.95,
-    a: 0.6,
-};
-const HEADING_COLOR: Color = Color {
-    r: 1.0,
-    g: 1.0,
-    b: 1.0,
-    a: 1.0,
-};
+const WALL_COLOR: Color = Color { r: 0.45, g: 0.45, b: 0.5, a: 1.0 };
+const OBSTACLE_COLOR: Color = Color { r: 0.75, g: 0.45, b: 0.2, a: 0.85 };
+const GOAL_COLOR: Color = Color { r: 0.1, g: 0.8, b: 0.25, a: 0.9 };
+const ROBOT_COLOR: Color = Color { r: 0.2, g: 0.45, b: 0.95, a: 0.6 };
+const HEADING_COLOR: Color = Color { r: 1.0, g: 1.0, b: 1.0, a: 1.0 };
 
 /// Rotation by `yaw` (rad) about +z.
 pub(crate) fn yaw_quaternion(yaw: f64) -> Quaternion {
     let half = 0.5 * yaw;
-    Quaternion {
-        x: 0.0,
-        y: 0.0,
-        z: half.sin(),
-        w: half.cos(),
-    }
+    Quaternion { x: 0.0, y: 0.0, z: half.sin(), w: half.cos() }
 }
 
 /// A pose at (x, y, z) rotated by `yaw` about +z.
 fn pose(x: f64, y: f64, z: f64, yaw: f64) -> Pose {
-    Pose {
-        position: Some(Vector3 { x, y, z }),
-        orientation: Some(yaw_quaternion(yaw)),
-    }
+    Pose { position: Some(Vector3 { x, y, z }), orientation: Some(yaw_quaternion(yaw)) }
 }
 
 fn size(x: f64, y: f64, z: f64) -> Option<Vector3> {
@@ -86,11 +53,7 @@ fn size(x: f64, y: f64, z: f64) -> Option<Vector3> {
 }
 
 fn point(p: Point, z: f64) -> Point3 {
-    Point3 {
-        x: p[0],
-        y: p[1],
-        z,
-    }
+    Point3 { x: p[0], y: p[1], z }
 }
 
 fn entity(id: &str, frame: &str, timestamp: Timestamp) -> SceneEntity {
@@ -131,11 +94,7 @@ fn prism(points: &[Point], h: f64) -> TriangleListPrimitive {
     if n >= 3 {
         tri.reserve(3 * (n - 2) + 6 * n);
         for i in 1..n - 1 {
-            tri.extend([
-                point(points[0], h),
-                point(points[i], h),
-                point(points[i + 1], h),
-            ]);
+            tri.extend([point(points[0], h), point(points[i], h), point(points[i + 1], h)]);
         }
         for i in 0..n {
             let (a, b) = (points[i], points[(i + 1) % n]);
@@ -157,11 +116,7 @@ fn obstacles(list: &[ObstacleSpec], timestamp: Timestamp) -> SceneEntity {
     let mut e = entity("obstacles", WORLD_FRAME, timestamp);
     for o in list {
         match o {
-            ObstacleSpec::Box {
-                center,
-                half_extents,
-                angle,
-            } => e.cubes.push(CubePrimitive {
+            ObstacleSpec::Box { center, half_extents, angle } => e.cubes.push(CubePrimitive {
                 pose: Some(pose(center[0], center[1], 0.5 * h, *angle)),
                 size: size(2.0 * half_extents[0], 2.0 * half_extents[1], h),
                 color: Some(OBSTACLE_COLOR),
@@ -196,18 +151,7 @@ fn robot(radius: f64, timestamp: Timestamp) -> SceneEntity {
             pose: Some(pose(0.0, 0.0, h + 0.01, 0.0)),
             thickness: 0.03,
             scale_invariant: false,
-            points: vec![
-                Point3 {
-                    x: 0.0,
-                    y: 0.0,
-                    z: 0.0,
-                },
-                Point3 {
-                    x: radius,
-                    y: 0.0,
-                    z: 0.0,
-                },
-            ],
+            points: vec![Point3 { x: 0.0, y: 0.0, z: 0.0 }, Point3 { x: radius, y: 0.0, z: 0.0 }],
             color: Some(HEADING_COLOR),
             ..Default::default()
         }],

@@ -20,15 +20,8 @@ fn room() -> RoomSpec {
         side: 6.0,
         wall_thickness: 0.2,
         obstacles: vec![
-            ObstacleSpec::Box {
-                center: [1.0, 1.0],
-                half_extents: [0.3, 0.2],
-                angle: 0.5,
-            },
-            ObstacleSpec::Circle {
-                center: [-1.5, 0.5],
-                radius: 0.4,
-            },
+            ObstacleSpec::Box { center: [1.0, 1.0], half_extents: [0.3, 0.2], angle: 0.5 },
+            ObstacleSpec::Circle { center: [-1.5, 0.5], radius: 0.4 },
             ObstacleSpec::Polygon {
                 points: vec![[0.0, -2.0], [1.0, -2.0], [1.2, -1.2], [0.2, -1.0]],
             },
@@ -141,24 +134,9 @@ fn log_episode(log: &mut EpisodeLogger, ep: &Episode, room: &RoomSpec, lidar: &L
 
 fn three_episodes() -> Vec<Episode> {
     vec![
-        Episode {
-            id: 10,
-            steps: 5,
-            outcome: dvnav_proto::Outcome::Success,
-            stage: 0,
-        },
-        Episode {
-            id: 11,
-            steps: 3,
-            outcome: dvnav_proto::Outcome::Collision,
-            stage: 0,
-        },
-        Episode {
-            id: 12,
-            steps: 7,
-            outcome: dvnav_proto::Outcome::Timeout,
-            stage: 0,
-        },
+        Episode { id: 10, steps: 5, outcome: dvnav_proto::Outcome::Success, stage: 0 },
+        Episode { id: 11, steps: 3, outcome: dvnav_proto::Outcome::Collision, stage: 0 },
+        Episode { id: 12, steps: 7, outcome: dvnav_proto::Outcome::Timeout, stage: 0 },
     ]
 }
 
@@ -175,10 +153,7 @@ fn mcap_files(dir: &Path) -> Vec<PathBuf> {
 /// Every message of a finished file, in file order.
 fn messages(path: &Path) -> Vec<mcap::Message<'static>> {
     let bytes = std::fs::read(path).unwrap();
-    mcap::MessageStream::new(&bytes)
-        .unwrap()
-        .map(|m| m.unwrap())
-        .collect()
+    mcap::MessageStream::new(&bytes).unwrap().map(|m| m.unwrap()).collect()
 }
 
 fn assert_close(a: f64, b: f64) {
@@ -187,11 +162,7 @@ fn assert_close(a: f64, b: f64) {
 
 /// Checks a dvnav channel's schema: protobuf, full name, and a descriptor set that defines it.
 fn assert_dvnav_schema(m: &mcap::Message<'_>, full_name: &str) {
-    let schema = m
-        .channel
-        .schema
-        .as_ref()
-        .expect("dvnav channels have a schema");
+    let schema = m.channel.schema.as_ref().expect("dvnav channels have a schema");
     assert_eq!(schema.name, full_name);
     assert_eq!(schema.encoding, "protobuf");
     let fds = prost_types::FileDescriptorSet::decode(schema.data.as_ref()).unwrap();
@@ -205,11 +176,7 @@ fn assert_dvnav_schema(m: &mcap::Message<'_>, full_name: &str) {
 }
 
 fn assert_foxglove_schema(m: &mcap::Message<'_>, full_name: &str) {
-    let schema = m
-        .channel
-        .schema
-        .as_ref()
-        .expect("foxglove channels have a schema");
+    let schema = m.channel.schema.as_ref().expect("foxglove channels have a schema");
     assert_eq!(schema.name, full_name);
     assert_eq!(schema.encoding, "protobuf");
     assert!(!schema.data.is_empty());
@@ -228,22 +195,15 @@ fn rotated_files_decode_against_their_schemas() {
     log.close().unwrap();
 
     let files = mcap_files(dir.path());
-    let names: Vec<_> = files
-        .iter()
-        .map(|p| p.file_name().unwrap().to_str().unwrap())
-        .collect();
+    let names: Vec<_> = files.iter().map(|p| p.file_name().unwrap().to_str().unwrap()).collect();
     assert_eq!(names, ["actor-3-00000.mcap", "actor-3-00001.mcap"]);
 
     let by_file = [&episodes[..2], &episodes[2..]];
     for (index, (path, eps)) in files.iter().zip(by_file).enumerate() {
         // Metadata, through the summary section (so the file is also properly finished).
         let bytes = std::fs::read(path).unwrap();
-        let summary = mcap::Summary::read(&bytes)
-            .unwrap()
-            .expect("finished file has a summary");
-        let [index_rec] = &summary.metadata_indexes[..] else {
-            panic!("one metadata record")
-        };
+        let summary = mcap::Summary::read(&bytes).unwrap().expect("finished file has a summary");
+        let [index_rec] = &summary.metadata_indexes[..] else { panic!("one metadata record") };
         let md = mcap::read::metadata(&bytes, index_rec).unwrap();
         assert_eq!(md.name, "dvnav");
         let expected: BTreeMap<String, String> = [
@@ -341,10 +301,8 @@ fn rotated_files_decode_against_their_schemas() {
             }
         }
         assert!(ep_iter.next().is_none(), "a scene for every episode");
-        let expected_steps: Vec<_> = eps
-            .iter()
-            .flat_map(|e| (0..=e.steps).map(move |k| (e.id, k)))
-            .collect();
+        let expected_steps: Vec<_> =
+            eps.iter().flat_map(|e| (0..=e.steps).map(move |k| (e.id, k))).collect();
         assert_eq!(steps_seen, expected_steps);
         let n_steps = expected_steps.len();
         let expected_counts: BTreeMap<String, usize> = [
@@ -370,12 +328,7 @@ fn rotated_files_decode_against_their_schemas() {
 fn scan_ranges_round_trip_exactly() {
     let dir = tempfile::tempdir().unwrap();
     let (room, lidar) = (room(), LidarConfig::default());
-    let ep = Episode {
-        id: 0,
-        steps: 2,
-        outcome: dvnav_proto::Outcome::Success,
-        stage: 1,
-    };
+    let ep = Episode { id: 0, steps: 2, outcome: dvnav_proto::Outcome::Success, stage: 1 };
     let mut log = EpisodeLogger::create(dir.path(), "a", meta(), 5).unwrap();
     log_episode(&mut log, &ep, &room, &lidar);
     log.close().unwrap();
@@ -385,12 +338,7 @@ fn scan_ranges_round_trip_exactly() {
         .map(|m| LaserScan::decode(m.data.as_ref()).unwrap().ranges)
         .collect();
     let expected: Vec<Vec<f64>> = (0..=ep.steps)
-        .map(|k| {
-            scan_at(pose_at(&ep, k), &room, &lidar)
-                .iter()
-                .map(|&r| f64::from(r))
-                .collect()
-        })
+        .map(|k| scan_at(pose_at(&ep, k), &room, &lidar).iter().map(|&r| f64::from(r)).collect())
         .collect();
     assert_eq!(scans, expected);
 }
@@ -408,20 +356,12 @@ fn log_time_is_simulation_time_and_episodes_do_not_overlap() {
 
     for path in mcap_files(dir.path()) {
         let msgs = messages(&path);
-        assert!(
-            msgs.windows(2).all(|w| w[0].log_time <= w[1].log_time),
-            "monotonic in {path:?}"
-        );
+        assert!(msgs.windows(2).all(|w| w[0].log_time <= w[1].log_time), "monotonic in {path:?}");
         assert_eq!(msgs[0].log_time, 0, "each file's clock starts at 0");
         let summaries: Vec<_> = msgs
             .iter()
             .filter(|m| m.channel.topic == TOPIC_EPISODE)
-            .map(|m| {
-                (
-                    m.log_time,
-                    dvnav_proto::EpisodeSummary::decode(m.data.as_ref()).unwrap(),
-                )
-            })
+            .map(|m| (m.log_time, dvnav_proto::EpisodeSummary::decode(m.data.as_ref()).unwrap()))
             .collect();
         let mut expected_start = 0;
         for (log_time, s) in &summaries {
@@ -438,10 +378,7 @@ fn log_time_is_simulation_time_and_episodes_do_not_overlap() {
             expected_start = s.end_time_ns + DT_NS;
         }
         for w in summaries.windows(2) {
-            assert!(
-                w[0].1.end_time_ns < w[1].1.start_time_ns,
-                "episodes overlap"
-            );
+            assert!(w[0].1.end_time_ns < w[1].1.start_time_ns, "episodes overlap");
         }
     }
 }
@@ -465,10 +402,7 @@ fn read_episodes_and_summarize() {
     let ids: Vec<_> = records.iter().map(|r| r.summary.episode_id).collect();
     assert_eq!(ids, [10, 11, 12]);
     assert!(records.iter().all(|r| r.file.starts_with(&sub)));
-    assert_eq!(
-        records[0].summary.outcome,
-        dvnav_proto::Outcome::Success as i32
-    );
+    assert_eq!(records[0].summary.outcome, dvnav_proto::Outcome::Success as i32);
     assert_eq!(records[2].summary.steps, 7);
 
     // One file on its own.
@@ -541,18 +475,9 @@ fn one_file(dir: &Path, n: u64) -> (PathBuf, Vec<u64>) {
     let mut log = EpisodeLogger::create(dir, "cut", meta(), 100).unwrap();
     let mut ends = Vec::new();
     for id in 0..n {
-        let ep = Episode {
-            id,
-            steps: 20,
-            outcome: dvnav_proto::Outcome::Success,
-            stage: 0,
-        };
+        let ep = Episode { id, steps: 20, outcome: dvnav_proto::Outcome::Success, stage: 0 };
         log_episode(&mut log, &ep, &room, &lidar);
-        ends.push(
-            std::fs::metadata(log.current_file().unwrap())
-                .unwrap()
-                .len(),
-        );
+        ends.push(std::fs::metadata(log.current_file().unwrap()).unwrap().len());
     }
     let path = log.current_file().unwrap().to_path_buf();
     log.close().unwrap();
@@ -568,10 +493,8 @@ fn truncated_files_yield_the_episodes_before_the_cut() {
     assert!(ends.windows(2).all(|w| w[0] < w[1]) && *ends.last().unwrap() < len);
 
     let cut_dir = tempfile::tempdir().unwrap();
-    let mut cuts: Vec<u64> = [0.0, 0.1, 0.3, 0.6, 0.9, 0.99]
-        .iter()
-        .map(|f| (f * len as f64) as u64)
-        .collect();
+    let mut cuts: Vec<u64> =
+        [0.0, 0.1, 0.3, 0.6, 0.9, 0.99].iter().map(|f| (f * len as f64) as u64).collect();
     cuts.extend([0, 7, 8, 9, len - 1]);
     cuts.extend(ends.iter().flat_map(|&e| [e - 1, e, e + 1]));
     for cut in cuts {
@@ -589,11 +512,7 @@ fn truncated_files_yield_the_episodes_before_the_cut() {
             whole <= n && n <= started.min(ends.len() as u64),
             "cut at {cut} of {len}: read {ids:?}, ends {ends:?}"
         );
-        assert_eq!(
-            ids,
-            (0..n).collect::<Vec<_>>(),
-            "cut at {cut}: a prefix, in order"
-        );
+        assert_eq!(ids, (0..n).collect::<Vec<_>>(), "cut at {cut}: a prefix, in order");
         std::fs::remove_file(&cut_path).unwrap();
     }
     // At 90 % at least the first episode survives.
@@ -608,24 +527,12 @@ fn a_file_still_being_written_reads_like_a_killed_actor_left_it() {
     let (room, lidar) = (room(), LidarConfig::default());
     let mut log = EpisodeLogger::create(dir.path(), "live", meta(), 100).unwrap();
     for id in 0..2 {
-        let ep = Episode {
-            id,
-            steps: 30,
-            outcome: dvnav_proto::Outcome::Timeout,
-            stage: 2,
-        };
+        let ep = Episode { id, steps: 30, outcome: dvnav_proto::Outcome::Timeout, stage: 2 };
         log_episode(&mut log, &ep, &room, &lidar);
     }
-    let ends_of_two = std::fs::metadata(log.current_file().unwrap())
-        .unwrap()
-        .len();
+    let ends_of_two = std::fs::metadata(log.current_file().unwrap()).unwrap().len();
     // Half an episode that is never ended; the BufWriter spills part of the open chunk.
-    let ep = Episode {
-        id: 2,
-        steps: 400,
-        outcome: dvnav_proto::Outcome::Timeout,
-        stage: 2,
-    };
+    let ep = Episode { id: 2, steps: 400, outcome: dvnav_proto::Outcome::Timeout, stage: 2 };
     log.begin_episode(&EpisodeStart {
         episode_id: 2,
         room: &room,
@@ -652,9 +559,7 @@ fn a_file_still_being_written_reads_like_a_killed_actor_left_it() {
         .unwrap();
     }
     let flushed = ends_of_two;
-    let on_disk = std::fs::metadata(log.current_file().unwrap())
-        .unwrap()
-        .len();
+    let on_disk = std::fs::metadata(log.current_file().unwrap()).unwrap().len();
     assert!(on_disk > flushed, "part of the open chunk reached the file");
     // What SIGKILL leaves: exactly the bytes the OS has now.
     let snapshot = dir.path().join("snapshot");
@@ -670,12 +575,7 @@ fn a_file_still_being_written_reads_like_a_killed_actor_left_it() {
 fn restart_continues_numbering_and_never_overwrites() {
     let dir = tempfile::tempdir().unwrap();
     let (room, lidar) = (room(), LidarConfig::default());
-    let ep = Episode {
-        id: 0,
-        steps: 1,
-        outcome: dvnav_proto::Outcome::Success,
-        stage: 0,
-    };
+    let ep = Episode { id: 0, steps: 1, outcome: dvnav_proto::Outcome::Success, stage: 0 };
     for _ in 0..2 {
         let mut log = EpisodeLogger::create(dir.path(), "r", meta(), 10).unwrap();
         log_episode(&mut log, &ep, &room, &lidar);
@@ -709,14 +609,8 @@ fn misuse_is_an_error() {
         goal_angle: 0.0,
     };
     let scan: &'static [f32] = scan.leak();
-    assert!(
-        log.log_step(&step(0, scan)).is_err(),
-        "step outside an episode"
-    );
-    assert!(
-        log.end_episode(Default::default()).is_err(),
-        "end without begin"
-    );
+    assert!(log.log_step(&step(0, scan)).is_err(), "step outside an episode");
+    assert!(log.end_episode(Default::default()).is_err(), "end without begin");
     let start = EpisodeStart {
         episode_id: 1,
         room: &room,
@@ -726,12 +620,8 @@ fn misuse_is_an_error() {
         dt: 0.0,
     };
     assert!(log.begin_episode(&start).is_err(), "dt = 0");
-    log.begin_episode(&EpisodeStart { dt: DT, ..start })
-        .unwrap();
-    assert!(
-        log.log_step(&step(0, &scan[..10])).is_err(),
-        "wrong beam count"
-    );
+    log.begin_episode(&EpisodeStart { dt: DT, ..start }).unwrap();
+    assert!(log.log_step(&step(0, &scan[..10])).is_err(), "wrong beam count");
     log.log_step(&step(3, scan)).unwrap();
     assert!(log.log_step(&step(2, scan)).is_err(), "steps go backwards");
     log.end_episode(Default::default()).unwrap();

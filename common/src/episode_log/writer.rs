@@ -46,10 +46,7 @@ impl LogMetadata {
             ("actor_id".to_string(), self.actor_id.to_string()),
             ("config_hash".to_string(), self.config_hash.clone()),
             ("seed".to_string(), self.seed.to_string()),
-            (
-                "dvnav_version".to_string(),
-                env!("CARGO_PKG_VERSION").to_string(),
-            ),
+            ("dvnav_version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
             ("file_index".to_string(), file_index.to_string()),
         ])
     }
@@ -224,10 +221,7 @@ impl EpisodeLogger {
         meta: LogMetadata,
         episodes_per_file: u64,
     ) -> Result<Self> {
-        ensure!(
-            episodes_per_file > 0,
-            "episodes_per_file must be at least 1"
-        );
+        ensure!(episodes_per_file > 0, "episodes_per_file must be at least 1");
         ensure!(
             !prefix.is_empty() && !prefix.contains(['/', '\\']),
             "log file prefix {prefix:?} must be a non-empty file name"
@@ -246,10 +240,7 @@ impl EpisodeLogger {
             next_index,
             file: None,
             episode: None,
-            scan_msg: LaserScan {
-                frame_id: ROBOT_FRAME.to_string(),
-                ..Default::default()
-            },
+            scan_msg: LaserScan { frame_id: ROBOT_FRAME.to_string(), ..Default::default() },
         })
     }
 
@@ -290,27 +281,19 @@ impl EpisodeLogger {
                 .write_metadata(METADATA_NAME, self.meta.to_map(index))
                 .with_context(|| format!("writing metadata to {}", path.display()))?;
             tracing::debug!(path = %path.display(), "episode log opened");
-            return Ok(OpenFile {
-                handle,
-                path,
-                episodes: 0,
-                next_base_ns: 0,
-            });
+            return Ok(OpenFile { handle, path, episodes: 0, next_base_ns: 0 });
         }
     }
 
     /// Finishes the open file (chunk, summary, indexes, footer) and syncs it to disk.
     fn finish_file(file: OpenFile) -> Result<()> {
         let OpenFile { handle, path, .. } = file;
-        let writer = handle
-            .close()
-            .with_context(|| format!("finishing {}", path.display()))?;
+        let writer = handle.close().with_context(|| format!("finishing {}", path.display()))?;
         let file = writer
             .into_inner()
             .map_err(|e| e.into_error())
             .with_context(|| format!("flushing {}", path.display()))?;
-        file.sync_all()
-            .with_context(|| format!("syncing {}", path.display()))?;
+        file.sync_all().with_context(|| format!("syncing {}", path.display()))?;
         tracing::debug!(path = %path.display(), "episode log finished");
         Ok(())
     }
@@ -325,11 +308,7 @@ impl EpisodeLogger {
             ep.episode_id,
             ep.dt
         );
-        ensure!(
-            ep.lidar.beams > 0,
-            "episode {}: LiDAR has no beams",
-            ep.episode_id
-        );
+        ensure!(ep.lidar.beams > 0, "episode {}: LiDAR has no beams", ep.episode_id);
         if let Some(open) = self.episode.take() {
             tracing::warn!(
                 abandoned = open.id,
@@ -358,9 +337,7 @@ impl EpisodeLogger {
             start_angle: -0.5 * fov + fov * 0.5 / n,
             end_angle: -0.5 * fov + fov * (n - 0.5) / n,
         });
-        self.channels
-            .scene
-            .log_with_time(&episode_scene(ep, timestamp(base_ns)), base_ns);
+        self.channels.scene.log_with_time(&episode_scene(ep, timestamp(base_ns)), base_ns);
         Ok(())
     }
 
@@ -379,12 +356,7 @@ impl EpisodeLogger {
         );
         let t = ep.base_ns + u64::from(s.step) * ep.dt_ns;
         if let Some(last) = ep.last_ns {
-            ensure!(
-                t >= last,
-                "episode {}: step {} logged after a later step",
-                ep.id,
-                s.step
-            );
+            ensure!(t >= last, "episode {}: step {} logged after a later step", ep.id, s.step);
         }
         ep.last_ns = Some(t);
         let stamp = timestamp(t);
@@ -435,10 +407,7 @@ impl EpisodeLogger {
     /// is finished; the next episode opens a new one.
     pub fn end_episode(&mut self, mut summary: dvnav_proto::EpisodeSummary) -> Result<()> {
         let Some(ep) = self.episode.take() else {
-            bail!(
-                "episode log: episode {} ended but none was begun",
-                summary.episode_id
-            );
+            bail!("episode log: episode {} ended but none was begun", summary.episode_id);
         };
         let Some(file) = self.file.as_mut() else {
             bail!("episode log: episode {} has no open file", ep.id);
@@ -458,9 +427,7 @@ impl EpisodeLogger {
             Self::finish_file(file)
         } else {
             // Close the chunk and hand it to the OS: a crash from here on keeps this episode.
-            file.handle
-                .flush()
-                .with_context(|| format!("flushing {}", file.path.display()))
+            file.handle.flush().with_context(|| format!("flushing {}", file.path.display()))
         }
     }
 

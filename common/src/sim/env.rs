@@ -523,6 +523,24 @@ mod tests {
     }
 
     #[test]
+    fn lidar_noise_is_seeded_and_leaves_the_episodes_alone() {
+        let room = Room::builtin("env1").unwrap();
+        let noisy_cfg = EnvConfig {
+            lidar: crate::config::LidarConfig { noise_std: 0.01, ..Default::default() },
+            ..cfg()
+        };
+        let exact = NavEnv::new(room.clone(), &cfg(), 11);
+        let mut a = NavEnv::new(room.clone(), &noisy_cfg, 11);
+        let mut b = NavEnv::new(room, &noisy_cfg, 11);
+        assert_eq!((a.start(), a.goal()), (exact.start(), exact.goal()), "same episodes");
+        assert_ne!(a.scan(), exact.scan(), "noisy");
+        assert_eq!(a.scan(), b.scan(), "deterministic");
+        a.step(0.2, 0.1);
+        b.step(0.2, 0.1);
+        assert_eq!(a.scan(), b.scan());
+    }
+
+    #[test]
     fn set_room_takes_effect_at_reset() {
         let mut env = NavEnv::new(Room::builtin("env0").unwrap(), &cfg(), 5);
         env.set_room(Room::builtin("env3").unwrap());

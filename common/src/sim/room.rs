@@ -240,23 +240,3 @@ mod tests {
         assert!(room.cast_ray(inside, [0.0, -1.0], 10.0).unwrap() > 2.0, "pocket opens south");
     }
 }
-#[cfg(test)]
-mod tmp_render {
-    #[test]
-    fn render() {
-        for name in ["env0", "env3"] {
-            let room = super::Room::builtin(name).unwrap();
-            let h = room.side() / 2.0;
-            let n = 50;
-            for j in (0..n).rev() {
-                let mut line = String::new();
-                for i in 0..n {
-                    let p = [-h + (i as f64 + 0.5) * 2.0 * h / n as f64, -h + (j as f64 + 0.5) * 2.0 * h / n as f64];
-                    line.push(if room.clearance(p, 1.0) == 0.0 { '#' } else if room.circle_collides(p, 0.3) { '.' } else { ' ' });
-                }
-                println!("|{line}|");
-            }
-            println!();
-        }
-    }
-}

@@ -63,7 +63,11 @@ pub fn actor_loss(
 }
 
 /// J(α) = mean(−α (log π + H̄)), with α = exp(log α) and log π treated as a constant.
-pub fn temperature_loss(log_alpha: &Tensor, log_prob: &Tensor, target_entropy: f64) -> Result<Tensor> {
+pub fn temperature_loss(
+    log_alpha: &Tensor,
+    log_prob: &Tensor,
+    target_entropy: f64,
+) -> Result<Tensor> {
     let alpha = log_alpha.exp()?;
     let gap = (log_prob.detach() + target_entropy)?;
     gap.broadcast_mul(&alpha)?.neg()?.mean_all()
@@ -131,7 +135,8 @@ impl SacLearner {
             .collect();
         let critic_opt = Adam::new(critic_vars, cfg.critic_lr)?;
         let actor_opt = Adam::new(actor_vars, cfg.actor_lr)?;
-        let alpha_opt = Adam::new(vec![("log_alpha".into(), nets.log_alpha.clone())], cfg.alpha_lr)?;
+        let alpha_opt =
+            Adam::new(vec![("log_alpha".into(), nets.log_alpha.clone())], cfg.alpha_lr)?;
         let target_entropy = cfg.target_entropy.unwrap_or(-(ACTION_DIM as f64));
         Ok(Self {
             nets,
@@ -190,7 +195,7 @@ impl SacLearner {
         self.last.q_mean = scalar(&q1.mean_all()?)?;
 
         // Policy and temperature, delayed.
-        if self.updates % self.cfg.policy_delay == 0 {
+        if self.updates.is_multiple_of(self.cfg.policy_delay) {
             let pi = nets.actor.net.sample(&obs)?;
             let q1_pi = nets.critic1.net.forward(&obs, &pi.action)?;
             let q2_pi = nets.critic2.net.forward(&obs, &pi.action)?;
@@ -204,8 +209,11 @@ impl SacLearner {
             self.last.actor_loss = scalar(&loss_pi)?;
             self.last.entropy = -scalar(&pi.log_prob.mean_all()?)?;
             if self.cfg.autotune_alpha {
-                let loss_a =
-                    temperature_loss(self.nets.log_alpha.as_tensor(), &pi.log_prob, self.target_entropy)?;
+                let loss_a = temperature_loss(
+                    self.nets.log_alpha.as_tensor(),
+                    &pi.log_prob,
+                    self.target_entropy,
+                )?;
                 self.alpha_opt.step(&loss_a.backward()?)?;
             }
         }
@@ -228,7 +236,9 @@ impl SacLearner {
             ("target1", self.nets.target1.named_vars()),
             ("target2", self.nets.target2.named_vars()),
         ] {
-            out.extend(vars.into_iter().map(|(n, v)| (format!("{prefix}.{n}"), v.as_tensor().clone())));
+            out.extend(
+                vars.into_iter().map(|(n, v)| (format!("{prefix}.{n}"), v.as_tensor().clone())),
+            );
         }
         out.push(("log_alpha".into(), self.nets.log_alpha.as_tensor().clone()));
         out.extend(self.critic_opt.state_tensors("opt.critic"));
@@ -262,7 +272,11 @@ impl SacLearner {
                     .get(&key)
                     .ok_or_else(|| anyhow::anyhow!("checkpoint lacks tensor `{key}`"))?;
                 if t.dims() != v.dims() {
-                    anyhow::bail!("checkpoint tensor `{key}` has shape {:?}, expected {:?}", t.dims(), v.dims());
+                    anyhow::bail!(
+                        "checkpoint tensor `{key}` has shape {:?}, expected {:?}",
+                        t.dims(),
+                        v.dims()
+                    );
                 }
                 v.set(t)?;
             }

@@ -24,11 +24,7 @@ impl<N> Owned<N> {
     }
 }
 
-fn build<N>(
-    dev: &Device,
-    seed: u64,
-    f: impl FnOnce(VarBuilder) -> Result<N>,
-) -> Result<Owned<N>> {
+fn build<N>(dev: &Device, seed: u64, f: impl FnOnce(VarBuilder) -> Result<N>) -> Result<Owned<N>> {
     let vars = VarMap::new();
     let net = f(VarBuilder::from_varmap(&vars, DType::F32, dev))?;
     init_seeded(&vars, seed)?;
@@ -61,10 +57,7 @@ impl SacNetworks {
         let critic2 = build(dev, seed.wrapping_add(2), |vb| Critic::new(vb, n, beams))?;
         let target1 = build(dev, seed.wrapping_add(1), |vb| Critic::new(vb, n, beams))?;
         let target2 = build(dev, seed.wrapping_add(2), |vb| Critic::new(vb, n, beams))?;
-        let log_alpha = Var::from_tensor(&Tensor::new(
-            &[cfg.sac.initial_alpha.ln() as f32],
-            dev,
-        )?)?;
+        let log_alpha = Var::from_tensor(&Tensor::new(&[cfg.sac.initial_alpha.ln() as f32], dev)?)?;
         Ok(Self { actor, critic1, critic2, target1, target2, log_alpha })
     }
 
