@@ -23,8 +23,7 @@ use tonic::metadata::{Ascii, MetadataValue};
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Channel, Endpoint};
 
-/// Largest gRPC message accepted or sent (weights can exceed gRPC's 4 MiB default).
-pub const MAX_MESSAGE_BYTES: usize = 256 * 1024 * 1024;
+use dvnav_proto::MAX_MESSAGE_BYTES;
 
 /// Options of an actor process.
 #[derive(Clone, Debug)]

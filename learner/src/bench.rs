@@ -61,7 +61,7 @@ pub fn sac_updates(
     let mut rng = rand_pcg::Pcg64::seed_from_u64(0);
     let replay = random_replay(cfg, 4 * batch, &mut rng);
     let nets = SacNetworks::new(cfg, 0, &dev)?;
-    let mut learner = SacLearner::new(nets, cfg.sac.clone(), dev.clone())?;
+    let mut learner = SacLearner::new(nets, cfg.sac.clone(), dev.clone(), 0)?;
     let mut b = Batch::default();
     for _ in 0..warmup {
         replay.sample_into(batch, &mut rng, &mut b);

@@ -108,3 +108,55 @@ fn prune(root: &Path) -> anyhow::Result<()> {
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sac::SacNetworks;
+    use candle_core::Device;
+    use dvnav_common::config::Config;
+
+    fn learner(seed: u64) -> SacLearner {
+        let cfg = Config::default();
+        let nets = SacNetworks::new(&cfg, seed, &Device::Cpu).unwrap();
+        SacLearner::new(nets, cfg.sac.clone(), Device::Cpu, seed).unwrap()
+    }
+
+    #[test]
+    fn written_checkpoints_restore_and_half_written_ones_are_ignored() {
+        let dir = tempfile::tempdir().unwrap();
+        let a = learner(1);
+        let meta =
+            CheckpointMeta { updates: 0, env_steps: 77, run_id: "r".into(), ..Default::default() };
+        let path = write(dir.path(), &a, &meta, "[run]\n").unwrap();
+        // A crash mid-write leaves only a .tmp directory, which readers skip.
+        std::fs::create_dir_all(dir.path().join("checkpoints/ckpt-0000000099.tmp")).unwrap();
+        assert_eq!(latest(dir.path()).unwrap(), Some(path.clone()));
+        let (m, tensors) = read(&path).unwrap();
+        assert_eq!(m, meta);
+        let mut b = learner(2);
+        assert_ne!(b.policy_safetensors().unwrap(), a.policy_safetensors().unwrap());
+        b.load_state(&tensors, m.updates, m.optimizer_steps).unwrap();
+        assert_eq!(b.policy_safetensors().unwrap(), a.policy_safetensors().unwrap());
+        assert_eq!(
+            std::fs::read(path.join("policy.safetensors")).unwrap(),
+            a.policy_safetensors().unwrap()
+        );
+    }
+
+    #[test]
+    fn keeps_the_newest_three() {
+        let dir = tempfile::tempdir().unwrap();
+        let a = learner(1);
+        for u in 1..=5 {
+            let meta = CheckpointMeta { updates: u, ..Default::default() };
+            write(dir.path(), &a, &meta, "").unwrap();
+        }
+        let names: Vec<String> = list(dir.path())
+            .unwrap()
+            .iter()
+            .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+            .collect();
+        assert_eq!(names, ["ckpt-0000000003", "ckpt-0000000004", "ckpt-0000000005"]);
+    }
+}

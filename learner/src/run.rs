@@ -15,9 +15,7 @@ use std::time::{Duration, Instant};
 use tokio::net::TcpListener;
 use tokio_stream::wrappers::TcpListenerStream;
 
-/// Largest gRPC message either side accepts. Weights of the default policy are about 1 MB and a
-/// default batch about 0.6 MB; larger networks or batches fit without touching this.
-pub const MAX_MESSAGE_BYTES: usize = 256 * 1024 * 1024;
+use dvnav_proto::MAX_MESSAGE_BYTES;
 
 /// How long the learner waits for actors to disconnect after the step budget is reached.
 pub const ACTOR_DRAIN_TIMEOUT: Duration = Duration::from_secs(30);
@@ -66,7 +64,7 @@ pub async fn run(
 
     let device = Device::Cpu;
     let nets = SacNetworks::new(&cfg, cfg.run.seed, &device)?;
-    let learner = SacLearner::new(nets, cfg.sac.clone(), device)?;
+    let learner = SacLearner::new(nets, cfg.sac.clone(), device, cfg.run.seed ^ 0x0005_ac00)?;
     let state = Arc::new(LearnerState::new(
         cfg.clone(),
         run_id,

@@ -10,6 +10,11 @@
 /// Version of the actor ⇄ learner protocol; a learner refuses actors that speak another one.
 pub const PROTOCOL_VERSION: u32 = 1;
 
+/// Largest gRPC message either side of the learner service accepts or sends. Weights of the
+/// default policy are about 1 MB and a default batch about 0.6 MB, over gRPC's 4 MiB default
+/// only for much larger networks or batches; set deliberately so they never fail at run time.
+pub const MAX_MESSAGE_BYTES: usize = 256 * 1024 * 1024;
+
 /// Encoded `google.protobuf.FileDescriptorSet` of `dvnav/v1/*.proto`.
 pub const FILE_DESCRIPTOR_SET: &[u8] =
     include_bytes!(concat!(env!("OUT_DIR"), "/dvnav_descriptor.bin"));

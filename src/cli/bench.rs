@@ -171,7 +171,7 @@ async fn bench_transport(transitions: usize, batch: usize) -> anyhow::Result<ser
         tonic::transport::Server::builder()
             .add_service(
                 LearnerServer::new(LearnerService::new(state.clone()))
-                    .max_decoding_message_size(dvnav_learner::run::MAX_MESSAGE_BYTES),
+                    .max_decoding_message_size(dvnav_proto::MAX_MESSAGE_BYTES),
             )
             .serve_with_incoming_shutdown(
                 tokio_stream::wrappers::TcpListenerStream::new(listener),

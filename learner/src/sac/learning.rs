@@ -19,6 +19,8 @@ use candle_core::{Device, Result, Tensor, Var};
 use dvnav_common::config::SacConfig;
 use dvnav_common::nets::Critic;
 use dvnav_common::obs::ACTION_DIM;
+use rand::SeedableRng;
+use rand_distr::{Distribution, StandardNormal};
 
 /// Q̂(s,a) = r + γ(1 − d)(min(Q̂1, Q̂2)(s′, ã′) − α log π(ã′|s′)), detached from the graph.
 pub fn soft_bellman_target(
@@ -111,6 +113,9 @@ pub struct SacLearner {
     updates: u64,
     last: UpdateMetrics,
     device: Device,
+    /// Source of the policy's sampling noise, seeded, so an update depends only on the seed,
+    /// the networks and the batch (candle's own CPU generator cannot be seeded).
+    noise: rand_pcg::Pcg64,
 }
 
 fn tensor(data: &[f32], shape: impl Into<candle_core::Shape>, dev: &Device) -> Result<Tensor> {
@@ -119,7 +124,7 @@ fn tensor(data: &[f32], shape: impl Into<candle_core::Shape>, dev: &Device) -> R
 
 impl SacLearner {
     /// A learner over fresh or loaded networks.
-    pub fn new(nets: SacNetworks, cfg: SacConfig, device: Device) -> Result<Self> {
+    pub fn new(nets: SacNetworks, cfg: SacConfig, device: Device, seed: u64) -> Result<Self> {
         let mut critic_vars = nets.critic1.named_vars();
         critic_vars.extend(
             nets.critic2.named_vars().into_iter().map(|(n, v)| (format!("critic2.{n}"), v)),
@@ -149,6 +154,7 @@ impl SacLearner {
             updates: 0,
             last: UpdateMetrics::default(),
             device,
+            noise: rand_pcg::Pcg64::seed_from_u64(seed),
         })
     }
 
@@ -173,10 +179,12 @@ impl SacLearner {
         let rewards = tensor(&batch.rewards, b, dev)?;
         let terminated = tensor(&batch.terminated, b, dev)?;
         let alpha = self.nets.alpha();
-        let nets = &self.nets;
 
         // Critics.
-        let next = nets.actor.net.sample(&next_obs)?;
+        let eps_next = self.standard_normal(b)?;
+        let eps_pi = self.standard_normal(b)?;
+        let nets = &self.nets;
+        let next = nets.actor.net.sample_with_noise(&next_obs, &eps_next)?;
         let next_action = next.action.detach();
         let target = soft_bellman_target(
             &rewards,
@@ -196,7 +204,7 @@ impl SacLearner {
 
         // Policy and temperature, delayed.
         if self.updates.is_multiple_of(self.cfg.policy_delay) {
-            let pi = nets.actor.net.sample(&obs)?;
+            let pi = nets.actor.net.sample_with_noise(&obs, &eps_pi)?;
             let q1_pi = nets.critic1.net.forward(&obs, &pi.action)?;
             let q2_pi = nets.critic2.net.forward(&obs, &pi.action)?;
             let weights: Vec<Tensor> =
@@ -223,6 +231,13 @@ impl SacLearner {
         self.updates += 1;
         self.last.alpha = self.nets.alpha();
         Ok(self.last)
+    }
+
+    /// `(batch, ACTION_DIM)` standard-normal noise from the learner's seeded generator.
+    fn standard_normal(&mut self, batch: usize) -> Result<Tensor> {
+        let v: Vec<f32> =
+            (0..batch * ACTION_DIM).map(|_| StandardNormal.sample(&mut self.noise)).collect();
+        Tensor::from_vec(v, (batch, ACTION_DIM), &self.device)
     }
 
     /// Named tensors of everything an exact resume needs besides the counters: networks,
@@ -315,6 +330,63 @@ mod tests {
 
     fn t(v: &[f32]) -> Tensor {
         Tensor::new(v, &Device::Cpu).unwrap()
+    }
+
+    fn tiny_batch(cfg: &dvnav_common::config::Config) -> Batch {
+        let d = cfg.obs_dim();
+        let n = 4;
+        Batch {
+            size: n,
+            obs_dim: d,
+            obs: (0..n * d).map(|i| 0.3 + (i % 13) as f32 * 0.2).collect(),
+            actions: (0..n * 2).map(|i| (i as f32 * 0.37).sin()).collect(),
+            rewards: vec![0.1, -0.2, 10.0, -10.0],
+            next_obs: (0..n * d).map(|i| 0.4 + (i % 11) as f32 * 0.2).collect(),
+            terminated: vec![0.0, 0.0, 1.0, 1.0],
+        }
+    }
+
+    fn learner(seed: u64) -> SacLearner {
+        let cfg = dvnav_common::config::Config::default();
+        let nets = SacNetworks::new(&cfg, 3, &Device::Cpu).unwrap();
+        SacLearner::new(nets, cfg.sac.clone(), Device::Cpu, seed).unwrap()
+    }
+
+    #[test]
+    fn updates_are_deterministic_given_the_seed_and_move_the_weights() {
+        let cfg = dvnav_common::config::Config::default();
+        let batch = tiny_batch(&cfg);
+        let (mut a, mut b, mut c) = (learner(1), learner(1), learner(2));
+        let before = a.policy_safetensors().unwrap();
+        for _ in 0..3 {
+            let ma = a.update(&batch).unwrap();
+            let mb = b.update(&batch).unwrap();
+            c.update(&batch).unwrap();
+            assert_eq!(ma, mb);
+            assert!(ma.critic_loss.is_finite() && ma.actor_loss.is_finite());
+        }
+        assert_eq!(a.updates(), 3);
+        let after = a.policy_safetensors().unwrap();
+        assert_ne!(before, after, "the policy was updated");
+        assert_eq!(after, b.policy_safetensors().unwrap());
+        assert_ne!(after, c.policy_safetensors().unwrap(), "other noise, other result");
+    }
+
+    #[test]
+    fn state_round_trips_into_a_fresh_learner() {
+        let cfg = dvnav_common::config::Config::default();
+        let batch = tiny_batch(&cfg);
+        let mut a = learner(1);
+        for _ in 0..2 {
+            a.update(&batch).unwrap();
+        }
+        let saved: std::collections::HashMap<String, Tensor> =
+            a.state_tensors().into_iter().collect();
+        let mut fresh = learner(9);
+        fresh.load_state(&saved, a.updates(), a.optimizer_steps()).unwrap();
+        assert_eq!(fresh.policy_safetensors().unwrap(), a.policy_safetensors().unwrap());
+        assert_eq!(fresh.updates(), 2);
+        assert_eq!(fresh.optimizer_steps(), a.optimizer_steps());
     }
 
     #[test]
