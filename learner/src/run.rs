@@ -6,7 +6,6 @@ use crate::state::{LearnerState, StatusSnapshot};
 use crate::trainer;
 use candle_core::Device;
 use dvnav_common::config::Config;
-use dvnav_proto::learner_server::LearnerServer;
 use serde::Serialize;
 use std::future::Future;
 use std::path::PathBuf;
@@ -14,8 +13,6 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::net::TcpListener;
 use tokio_stream::wrappers::TcpListenerStream;
-
-use dvnav_proto::MAX_MESSAGE_BYTES;
 
 /// How long the learner waits for actors to disconnect after the step budget is reached.
 pub const ACTOR_DRAIN_TIMEOUT: Duration = Duration::from_secs(30);
@@ -80,9 +77,7 @@ pub async fn run(
             .spawn(move || trainer::train(state, learner, out))?
     };
 
-    let service = LearnerServer::new(LearnerService::new(state.clone()))
-        .max_decoding_message_size(MAX_MESSAGE_BYTES)
-        .max_encoding_message_size(MAX_MESSAGE_BYTES);
+    let service = LearnerService::server(state.clone());
     let mut server_stop = state.shutdown_signal();
     let server = tokio::spawn(
         tonic::transport::Server::builder()

@@ -38,6 +38,14 @@ impl LearnerService {
         Self { state }
     }
 
+    /// The tonic server for `state`, with message-size limits set for weights and batches
+    /// ([`dvnav_proto::MAX_MESSAGE_BYTES`]) instead of gRPC's 4 MiB default.
+    pub fn server(state: Arc<LearnerState>) -> pb::learner_server::LearnerServer<Self> {
+        pb::learner_server::LearnerServer::new(Self::new(state))
+            .max_decoding_message_size(dvnav_proto::MAX_MESSAGE_BYTES)
+            .max_encoding_message_size(dvnav_proto::MAX_MESSAGE_BYTES)
+    }
+
     fn authorize<T>(&self, req: &Request<T>) -> Result<(), Status> {
         let presented = req
             .metadata()

@@ -154,7 +154,6 @@ async fn bench_transport(transitions: usize, batch: usize) -> anyhow::Result<ser
     use dvnav_common::core::TransitionBatch;
     use dvnav_learner::service::LearnerService;
     use dvnav_learner::state::LearnerState;
-    use dvnav_proto::learner_server::LearnerServer;
     use std::sync::Arc;
     use std::time::{Duration, Instant};
 
@@ -169,10 +168,7 @@ async fn bench_transport(transitions: usize, batch: usize) -> anyhow::Result<ser
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
     let server = tokio::spawn(
         tonic::transport::Server::builder()
-            .add_service(
-                LearnerServer::new(LearnerService::new(state.clone()))
-                    .max_decoding_message_size(dvnav_proto::MAX_MESSAGE_BYTES),
-            )
+            .add_service(LearnerService::server(state.clone()))
             .serve_with_incoming_shutdown(
                 tokio_stream::wrappers::TcpListenerStream::new(listener),
                 async {

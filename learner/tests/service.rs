@@ -1,0 +1,146 @@
+//! The learner's gRPC service over a real loopback socket: status codes for bad requests,
+//! acknowledgements for good batches, and a shutdown through a oneshot, never a sleep.
+
+use dvnav_common::config::Config;
+use dvnav_common::core::TransitionBatch;
+use dvnav_learner::service::LearnerService;
+use dvnav_learner::state::LearnerState;
+use dvnav_proto::learner_client::LearnerClient;
+use dvnav_proto::{PROTOCOL_VERSION, RegisterRequest, StatusRequest, VariablesRequest};
+use std::sync::Arc;
+use tonic::Code;
+use tonic::transport::Channel;
+
+struct Server {
+    state: Arc<LearnerState>,
+    url: String,
+    stop: Option<tokio::sync::oneshot::Sender<()>>,
+    task: tokio::task::JoinHandle<Result<(), tonic::transport::Error>>,
+}
+
+async fn start(token: Option<&str>) -> Server {
+    let mut cfg = Config::default();
+    cfg.run.steps = 1_000;
+    let state =
+        Arc::new(LearnerState::new(cfg, "t".into(), token.map(String::from), vec![1, 2, 3]));
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let url = format!("http://{}", listener.local_addr().unwrap());
+    let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+    let task = tokio::spawn(
+        tonic::transport::Server::builder()
+            .add_service(LearnerService::server(state.clone()))
+            .serve_with_incoming_shutdown(
+                tokio_stream::wrappers::TcpListenerStream::new(listener),
+                async {
+                    let _ = rx.await;
+                },
+            ),
+    );
+    Server { state, url, stop: Some(tx), task }
+}
+
+impl Server {
+    async fn client(&self) -> LearnerClient<Channel> {
+        LearnerClient::connect(self.url.clone())
+            .await
+            .unwrap()
+            .max_decoding_message_size(dvnav_proto::MAX_MESSAGE_BYTES)
+    }
+
+    async fn shutdown(mut self) {
+        self.state.begin_shutdown();
+        self.stop.take().unwrap().send(()).unwrap();
+        self.task.await.unwrap().unwrap();
+    }
+}
+
+fn register(name: &str, version: u32) -> RegisterRequest {
+    RegisterRequest { actor_name: name.into(), protocol_version: version, num_envs: 1 }
+}
+
+fn batch(cfg: &Config, n: usize) -> TransitionBatch {
+    let d = cfg.obs_dim();
+    let mut b = TransitionBatch::with_capacity(d, n);
+    for _ in 0..n {
+        b.push(&vec![1.0; d], [0.5, 0.0], 0.1, &vec![1.0; d], false, false, 1);
+    }
+    b
+}
+
+#[tokio::test]
+async fn wrong_protocol_version_is_a_failed_precondition() {
+    let s = start(None).await;
+    let err = s.client().await.register(register("a", PROTOCOL_VERSION + 1)).await.unwrap_err();
+    assert_eq!(err.code(), Code::FailedPrecondition, "{err}");
+    s.shutdown().await;
+}
+
+#[tokio::test]
+async fn a_missing_or_wrong_token_is_refused() {
+    let s = start(Some("s3cret")).await;
+    let mut c = s.client().await;
+    assert_eq!(
+        c.register(register("a", PROTOCOL_VERSION)).await.unwrap_err().code(),
+        Code::Unauthenticated
+    );
+    let mut req = tonic::Request::new(register("a", PROTOCOL_VERSION));
+    req.metadata_mut().insert("authorization", "Bearer wrong".parse().unwrap());
+    assert_eq!(c.register(req).await.unwrap_err().code(), Code::Unauthenticated);
+    let mut req = tonic::Request::new(register("a", PROTOCOL_VERSION));
+    req.metadata_mut().insert("authorization", "Bearer s3cret".parse().unwrap());
+    let reply = c.register(req).await.unwrap().into_inner();
+    assert_eq!(reply.obs_spec.unwrap().obs_dim, 544);
+    assert!(Config::from_toml_str(&reply.run_config_toml).is_ok());
+    s.shutdown().await;
+}
+
+#[tokio::test]
+async fn good_batches_are_acknowledged_and_malformed_ones_rejected_and_counted() {
+    let s = start(None).await;
+    let mut c = s.client().await;
+    let id = c.register(register("a", PROTOCOL_VERSION)).await.unwrap().into_inner().actor_id;
+    let cfg = s.state.config().clone();
+    let good = dvnav_common::wire::batch_to_proto(&batch(&cfg, 5), id, 0);
+    let mut bad = dvnav_common::wire::batch_to_proto(&batch(&cfg, 3), id, 1);
+    bad.observations[7] = f32::NAN;
+
+    let mut acks = c.transitions(tokio_stream::iter(vec![good, bad])).await.unwrap().into_inner();
+    let first = acks.message().await.unwrap().unwrap();
+    assert_eq!((first.sequence, first.accepted), (0, 5));
+    let err = acks.message().await.unwrap_err();
+    assert_eq!(err.code(), Code::InvalidArgument);
+    assert!(err.message().contains("observations"), "{}", err.message());
+
+    let st = c.status(StatusRequest {}).await.unwrap().into_inner();
+    assert_eq!((st.transitions_received, st.transitions_rejected), (5, 3));
+    assert_eq!(st.replay_size, 5, "the malformed batch never reached the replay buffer");
+
+    // A batch from an actor that never registered.
+    let stranger = dvnav_common::wire::batch_to_proto(&batch(&cfg, 1), 42, 0);
+    let mut acks = c.transitions(tokio_stream::iter(vec![stranger])).await.unwrap().into_inner();
+    assert_eq!(acks.message().await.unwrap_err().code(), Code::InvalidArgument);
+    s.shutdown().await;
+}
+
+#[tokio::test]
+async fn variables_stream_delivers_weights_and_ends_at_shutdown() {
+    let s = start(None).await;
+    let mut c = s.client().await;
+    let id = c.register(register("a", PROTOCOL_VERSION)).await.unwrap().into_inner().actor_id;
+    let mut vars = c.variables(VariablesRequest { actor_id: id }).await.unwrap().into_inner();
+    let first = vars.message().await.unwrap().unwrap();
+    assert_eq!((first.version, first.safetensors.as_slice()), (1, &[1u8, 2, 3][..]));
+    s.state.variables().publish_weights(vec![9; 5_000_000]);
+    let second = vars.message().await.unwrap().unwrap();
+    assert_eq!(
+        (second.version, second.safetensors.len()),
+        (2, 5_000_000),
+        "over gRPC's 4 MiB default"
+    );
+    s.state.begin_shutdown();
+    // The stop flag arrives, then the stream ends instead of holding shutdown up.
+    while let Some(u) = vars.message().await.unwrap_or(None) {
+        assert!(u.stop);
+    }
+    s.shutdown().await;
+}
