@@ -125,13 +125,11 @@ fn tensor(data: &[f32], shape: impl Into<candle_core::Shape>, dev: &Device) -> R
 impl SacLearner {
     /// A learner over fresh or loaded networks.
     pub fn new(nets: SacNetworks, cfg: SacConfig, device: Device, seed: u64) -> Result<Self> {
-        let mut critic_vars = nets.critic1.named_vars();
-        critic_vars.extend(
-            nets.critic2.named_vars().into_iter().map(|(n, v)| (format!("critic2.{n}"), v)),
-        );
-        for (n, _) in critic_vars.iter_mut().take(nets.critic1.named_vars().len()) {
-            *n = format!("critic1.{n}");
-        }
+        let prefixed = |p: &str, vars: Vec<(String, Var)>| {
+            vars.into_iter().map(|(n, v)| (format!("{p}.{n}"), v)).collect::<Vec<_>>()
+        };
+        let mut critic_vars = prefixed("critic1", nets.critic1.named_vars());
+        critic_vars.extend(prefixed("critic2", nets.critic2.named_vars()));
         let actor_vars = nets.actor.named_vars();
         let policy_weights = actor_vars
             .iter()
@@ -240,17 +238,22 @@ impl SacLearner {
         Tensor::from_vec(v, (batch, ACTION_DIM), &self.device)
     }
 
-    /// Named tensors of everything an exact resume needs besides the counters: networks,
-    /// targets, log α and every optimizer's moments.
-    pub fn state_tensors(&self) -> Vec<(String, Tensor)> {
-        let mut out = Vec::new();
-        for (prefix, vars) in [
+    /// Every network's variables under its checkpoint prefix.
+    fn network_vars(&self) -> [(&'static str, Vec<(String, Var)>); 5] {
+        [
             ("actor", self.nets.actor.named_vars()),
             ("critic1", self.nets.critic1.named_vars()),
             ("critic2", self.nets.critic2.named_vars()),
             ("target1", self.nets.target1.named_vars()),
             ("target2", self.nets.target2.named_vars()),
-        ] {
+        ]
+    }
+
+    /// Named tensors of everything an exact resume needs besides the counters: networks,
+    /// targets, log α and every optimizer's moments.
+    pub fn state_tensors(&self) -> Vec<(String, Tensor)> {
+        let mut out = Vec::new();
+        for (prefix, vars) in self.network_vars() {
             out.extend(
                 vars.into_iter().map(|(n, v)| (format!("{prefix}.{n}"), v.as_tensor().clone())),
             );
@@ -274,13 +277,7 @@ impl SacLearner {
         updates: u64,
         optimizer_steps: [u64; 3],
     ) -> anyhow::Result<()> {
-        for (prefix, vars) in [
-            ("actor", self.nets.actor.named_vars()),
-            ("critic1", self.nets.critic1.named_vars()),
-            ("critic2", self.nets.critic2.named_vars()),
-            ("target1", self.nets.target1.named_vars()),
-            ("target2", self.nets.target2.named_vars()),
-        ] {
+        for (prefix, vars) in self.network_vars() {
             for (n, v) in vars {
                 let key = format!("{prefix}.{n}");
                 let t = tensors
