@@ -2,13 +2,32 @@
 //!
 //! Each subcommand is a thin layer over the library crates: `train` supervises a learner and N
 //! actor processes on this machine; `learner` and `actor` are those two roles on their own, for
-//! runs across machines; `inspect` reads MCAP episode logs.
+//! runs across machines; `inspect` reads MCAP episode logs and `plot` draws them
+//! ([`render`]).
 
 mod cli;
+mod render;
 
 use clap::Parser;
 
+/// Keeps freed tensor buffers in the heap instead of returning them to the kernel.
+///
+/// candle allocates and frees multi-megabyte buffers for every op of every update. glibc's
+/// default serves allocations above 128 KiB with fresh `mmap`s and unmaps them on free, so
+/// every op paid for page faults and kernel page zeroing: ~25 % of a SAC update's time in a
+/// profile (`perf record dvnav bench learner`). Raising the thresholds makes freed buffers
+/// reusable.
+fn tune_allocator() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt only changes allocator parameters; called before any other thread runs.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 256 * 1024 * 1024);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, 512 * 1024 * 1024);
+    }
+}
+
 fn main() -> std::process::ExitCode {
+    tune_allocator();
     let args = cli::Cli::parse();
     cli::init_tracing(args.verbose);
     match cli::dispatch(args) {

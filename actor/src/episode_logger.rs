@@ -8,12 +8,14 @@ use std::path::Path;
 
 /// Logs every Nth episode of an actor (N = `logging.every_nth_episode`). An MCAP logger
 /// writes one episode at a time, and an actor's environments run episodes side by side, so
-/// each environment gets its own logger and files (`{name}-env{i}-NNNNN.mcap`).
+/// each environment gets its own logger and files (`{name}-env{i}-NNNNN.mcap`), rotated by
+/// `logging.episodes_per_file` and `logging.max_file_mb`.
 pub struct EpisodeSelector {
     dir: std::path::PathBuf,
     prefix: String,
     meta: LogMetadata,
     episodes_per_file: u64,
+    max_file_bytes: Option<u64>,
     loggers: Vec<Option<EpisodeLogger>>,
     every_nth: u64,
 }
@@ -35,6 +37,7 @@ impl EpisodeSelector {
             prefix: prefix.to_string(),
             meta,
             episodes_per_file: cfg.logging.episodes_per_file,
+            max_file_bytes: Some(cfg.logging.max_file_mb * 1024 * 1024).filter(|&b| b > 0),
             loggers: Vec::new(),
             every_nth: cfg.logging.every_nth_episode,
         }))
@@ -46,12 +49,15 @@ impl EpisodeSelector {
         }
         if self.loggers[env_index].is_none() {
             let prefix = format!("{}-env{env_index}", self.prefix);
-            self.loggers[env_index] = Some(EpisodeLogger::create(
-                &self.dir,
-                &prefix,
-                self.meta.clone(),
-                self.episodes_per_file,
-            )?);
+            self.loggers[env_index] = Some(
+                EpisodeLogger::create(
+                    &self.dir,
+                    &prefix,
+                    self.meta.clone(),
+                    self.episodes_per_file,
+                )?
+                .with_max_file_bytes(self.max_file_bytes),
+            );
         }
         Ok(self.loggers[env_index].as_mut().expect("created above"))
     }
@@ -75,6 +81,7 @@ impl EpisodeSelector {
             goal: env.goal(),
             lidar: &cfg.env.lidar,
             dt: cfg.env.dt,
+            mu: 1.0,
         })?;
         self.log_step(env_index, env, (0.0, 0.0), [-1.0, 0.0], 0.0)?;
         Ok(true)

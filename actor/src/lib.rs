@@ -10,11 +10,13 @@
 //! - [`adder`]: [`adder::BatchingAdder`], transitions into bounded batches for the stream.
 //! - [`variable_client`]: [`variable_client::VariableClient`], the newest weights and stage.
 //! - [`episode_logger`]: which episodes go to MCAP.
+//! - [`learner_link`]: connection, registration, delivery with acknowledgements, reconnection.
 //! - [`run`]: a whole actor process for `dvnav actor` and `dvnav train`.
 
 pub mod adder;
 pub mod environment_loop;
 pub mod episode_logger;
+pub mod learner_link;
 pub mod run;
 pub mod variable_client;
 

@@ -1,16 +1,13 @@
-//! A whole actor process: connect and register, follow the variables stream, stream
-//! transitions, run the environment loop on a blocking thread, and write a summary.
+//! A whole actor process: connect and register, run the environment loop on a blocking
+//! thread, deliver its batches through the [`crate::learner_link`], write a summary.
 
 use crate::adder::BatchingAdder;
 use crate::environment_loop::{EnvironmentLoop, LoopCounters};
 use crate::episode_logger::EpisodeSelector;
-use crate::variable_client::{VariableClient, variables_from_proto};
-use dvnav_common::config::Config;
-use dvnav_common::core::TransitionBatch;
+pub use crate::learner_link::connect;
+use crate::learner_link::{LinkCounters, LinkOptions, register, run_link};
+use crate::variable_client::VariableClient;
 use dvnav_common::episode_log::LogMetadata;
-use dvnav_common::wire::batch_to_proto;
-use dvnav_proto as pb;
-use pb::learner_client::LearnerClient;
 use serde::Serialize;
 use std::future::Future;
 use std::path::PathBuf;
@@ -18,12 +15,6 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
-use tokio_stream::wrappers::ReceiverStream;
-use tonic::metadata::{Ascii, MetadataValue};
-use tonic::service::interceptor::InterceptedService;
-use tonic::transport::{Channel, Endpoint};
-
-use dvnav_proto::MAX_MESSAGE_BYTES;
 
 /// Options of an actor process.
 #[derive(Clone, Debug)]
@@ -55,6 +46,8 @@ pub struct ActorSummary {
     pub batches_sent: u64,
     /// Batches acknowledged.
     pub batches_acked: u64,
+    /// Delivery details: duplicates, resends, reconnects, undelivered.
+    pub link: LinkCounters,
     /// The environment loop's counters.
     #[serde(flatten)]
     pub loop_counters: LoopCounters,
@@ -66,115 +59,8 @@ pub struct ActorSummary {
     pub stop_reason: String,
 }
 
-/// Adds `authorization: Bearer <token>` to every call when a token is set.
-#[derive(Clone)]
-pub struct AuthInterceptor {
-    header: Option<MetadataValue<Ascii>>,
-}
-
-impl AuthInterceptor {
-    /// An interceptor for `token`.
-    pub fn new(token: Option<&str>) -> anyhow::Result<Self> {
-        let header = token.map(|t| format!("Bearer {t}").parse()).transpose().map_err(|_| {
-            anyhow::anyhow!("the access token contains characters not allowed in a header")
-        })?;
-        Ok(Self { header })
-    }
-}
-
-impl tonic::service::Interceptor for AuthInterceptor {
-    fn call(&mut self, mut req: tonic::Request<()>) -> Result<tonic::Request<()>, tonic::Status> {
-        if let Some(h) = &self.header {
-            req.metadata_mut().insert("authorization", h.clone());
-        }
-        Ok(req)
-    }
-}
-
-/// The learner client type actors use.
-pub type Client = LearnerClient<InterceptedService<Channel, AuthInterceptor>>;
-
-/// Connects to the learner, retrying with exponential backoff until `timeout`.
-pub async fn connect(url: &str, token: Option<&str>, timeout: Duration) -> anyhow::Result<Client> {
-    let endpoint = Endpoint::from_shared(url.to_string())
-        .map_err(|e| anyhow::anyhow!("bad learner address {url:?}: {e}"))?
-        .connect_timeout(Duration::from_secs(5))
-        .http2_keep_alive_interval(Duration::from_secs(10))
-        .keep_alive_while_idle(true);
-    let deadline = Instant::now() + timeout;
-    let mut backoff = Duration::from_millis(100);
-    let channel = loop {
-        match endpoint.connect().await {
-            Ok(c) => break c,
-            Err(e) if Instant::now() + backoff < deadline => {
-                tracing::debug!(%url, error = %e, ?backoff, "learner not reachable yet; retrying");
-                tokio::time::sleep(backoff).await;
-                backoff = (backoff * 2).min(Duration::from_secs(5));
-            }
-            Err(e) => anyhow::bail!("cannot reach the learner at {url} within {timeout:?}: {e}"),
-        }
-    };
-    Ok(LearnerClient::with_interceptor(channel, AuthInterceptor::new(token)?)
-        .max_decoding_message_size(MAX_MESSAGE_BYTES)
-        .max_encoding_message_size(MAX_MESSAGE_BYTES))
-}
-
-#[derive(Debug, Default)]
-struct StreamCounters {
-    batches_sent: u64,
-    transitions_sent: u64,
-    batches_acked: u64,
-    transitions_acked: u64,
-}
-
-/// Writes batches from `batches` into a `Transitions` stream and counts the acknowledgements,
-/// until `batches` closes and the learner has acknowledged everything (or the stream fails).
-async fn stream_transitions(
-    mut client: Client,
-    actor_id: u32,
-    mut batches: mpsc::Receiver<TransitionBatch>,
-) -> (StreamCounters, Option<String>) {
-    let (out_tx, out_rx) = mpsc::channel::<pb::TransitionBatch>(2);
-    let sender = tokio::spawn(async move {
-        let (mut seq, mut sent) = (0u64, 0u64);
-        while let Some(b) = batches.recv().await {
-            let n = b.len() as u64;
-            if out_tx.send(batch_to_proto(&b, actor_id, seq)).await.is_err() {
-                break;
-            }
-            seq += 1;
-            sent += n;
-        }
-        (seq, sent)
-    });
-    let mut c = StreamCounters::default();
-    let mut error = None;
-    match client.transitions(ReceiverStream::new(out_rx)).await {
-        Ok(resp) => {
-            let mut acks = resp.into_inner();
-            loop {
-                match acks.message().await {
-                    Ok(Some(ack)) => {
-                        c.batches_acked += 1;
-                        c.transitions_acked += ack.accepted as u64;
-                    }
-                    Ok(None) => break,
-                    Err(s) => {
-                        error = Some(format!("{:?}: {}", s.code(), s.message()));
-                        break;
-                    }
-                }
-            }
-        }
-        Err(s) => error = Some(format!("{:?}: {}", s.code(), s.message())),
-    }
-    let (seq, sent) = sender.await.unwrap_or((0, 0));
-    c.batches_sent = seq;
-    c.transitions_sent = sent;
-    (c, error)
-}
-
-/// Runs an actor until the learner says stop or `shutdown` resolves.
+/// Runs an actor until the learner says stop or `shutdown` resolves. The learner going away
+/// does not end it: the link reconnects and resends what was not acknowledged.
 pub async fn run(
     opts: ActorOptions,
     shutdown: impl Future<Output = ()> + Send + 'static,
@@ -182,43 +68,10 @@ pub async fn run(
     let started = Instant::now();
     let mut client =
         connect(&opts.learner_url, opts.token.as_deref(), opts.connect_timeout).await?;
-    let reply = client
-        .register(pb::RegisterRequest {
-            actor_name: opts.name.clone(),
-            protocol_version: dvnav_proto::PROTOCOL_VERSION,
-            num_envs: 0,
-        })
-        .await
-        .map_err(|s| anyhow::anyhow!("registration refused ({:?}): {}", s.code(), s.message()))?
-        .into_inner();
-    let cfg = Config::from_toml_str(&reply.run_config_toml)
-        .map_err(|e| anyhow::anyhow!("the learner sent an unusable config: {e}"))?;
-    let actor_id = reply.actor_id;
-    tracing::info!(name = %opts.name, actor_id, run = %reply.run_id, "registered with the learner");
-
-    // Variables: follow the stream into a watch channel.
-    let (mut variables, var_tx) = VariableClient::new();
-    let mut var_stream = client
-        .variables(pb::VariablesRequest { actor_id })
-        .await
-        .map_err(|s| anyhow::anyhow!("variables stream refused: {}", s.message()))?
-        .into_inner();
-    let var_task = tokio::spawn(async move {
-        loop {
-            match var_stream.message().await {
-                Ok(Some(u)) => {
-                    var_tx.send_replace(Some(Arc::new(variables_from_proto(u))));
-                }
-                Ok(None) => break None,
-                Err(s) => break Some(format!("{:?}: {}", s.code(), s.message())),
-            }
-        }
-    });
-    variables.wait_first().await?;
-
-    // Transitions: a bounded queue between the loop thread and the stream.
-    let (batch_tx, batch_rx) = mpsc::channel(cfg.actor.send_queue_batches);
-    let stream_task = tokio::spawn(stream_transitions(client.clone(), actor_id, batch_rx));
+    let reg = register(&mut client, &opts.name).await?;
+    let cfg = reg.config.clone();
+    let actor_id = reg.actor_id;
+    tracing::info!(name = %opts.name, actor_id, run = %reg.run_id, "registered with the learner");
 
     let stop = Arc::new(AtomicBool::new(false));
     {
@@ -228,6 +81,22 @@ pub async fn run(
             stop.store(true, Ordering::Relaxed);
         });
     }
+    let (mut variables, var_tx) = VariableClient::new();
+    // A bounded queue between the loop thread and the link: when the learner pushes back or is
+    // away, the loop blocks here.
+    let (batch_tx, batch_rx) = mpsc::channel(cfg.actor.send_queue_batches);
+    let link = run_link(
+        LinkOptions {
+            url: opts.learner_url.clone(),
+            name: opts.name.clone(),
+            token: opts.token.clone(),
+        },
+        client,
+        reg.clone(),
+        batch_rx,
+        var_tx,
+        stop.clone(),
+    );
 
     let actor_dir = opts.out_dir.join("actors").join(&opts.name);
     std::fs::create_dir_all(&actor_dir)?;
@@ -235,31 +104,31 @@ pub async fn run(
         &opts.out_dir.join("mcap").join(&opts.name),
         &opts.name,
         LogMetadata {
-            run_id: reply.run_id.clone(),
+            run_id: reg.run_id.clone(),
             actor: opts.name.clone(),
             actor_id,
             config_hash: cfg.hash_hex(),
-            seed: reply.actor_seed,
+            seed: reg.actor_seed,
         },
         &cfg,
     )?;
     let name = opts.name.clone();
     let loop_stop = stop.clone();
-    let loop_source = variables.clone();
-    let loop_result =
+    let environment = async move {
+        variables.wait_first().await?;
         tokio::task::spawn_blocking(move || -> anyhow::Result<(LoopCounters, String)> {
             let adder = BatchingAdder::new(cfg.obs_dim(), cfg.actor.batch_transitions, batch_tx);
             let mut el = EnvironmentLoop::new(
                 cfg,
                 name,
                 actor_id,
-                reply.actor_seed,
+                reg.actor_seed,
                 adder,
-                loop_source,
+                variables,
                 logger,
             )?;
             let mut last_log = Instant::now();
-            el.run(|c| {
+            let ran = el.run(|c| {
                 if last_log.elapsed() > Duration::from_secs(30) {
                     tracing::info!(
                         env_steps = c.env_steps,
@@ -269,30 +138,43 @@ pub async fn run(
                     last_log = Instant::now();
                 }
                 !loop_stop.load(Ordering::Relaxed)
-            })?;
-            let reason =
-                if loop_stop.load(Ordering::Relaxed) { "interrupted" } else { "learner said stop" };
-            let (_adder, counters) = el.finish()?;
-            Ok((counters, reason.to_string()))
+            });
+            let interrupted = loop_stop.load(Ordering::Relaxed);
+            let reason = match (&ran, interrupted) {
+                (Ok(()), false) => "learner said stop".to_string(),
+                (Ok(()), true) => "interrupted".to_string(),
+                // The link gave up after a local stop: the adder's queue is closed.
+                (Err(e), true) => format!("interrupted while the learner was away ({e})"),
+                (Err(_), false) => String::new(),
+            };
+            if let (Err(e), false) = (&ran, interrupted) {
+                anyhow::bail!("environment loop failed: {e:#}");
+            }
+            // The adder (and its sender) is dropped with the loop: the link drains and closes.
+            let counters = match el.finish() {
+                Ok((_adder, c)) => c,
+                Err(e) if interrupted => {
+                    tracing::warn!(error = %e, "final flush failed after a local stop");
+                    LoopCounters::default()
+                }
+                Err(e) => return Err(e),
+            };
+            Ok((counters, reason))
         })
-        .await?;
-    // The adder (and its sender) is dropped: the stream drains and closes.
-    let (stream, stream_error) = stream_task.await?;
-    var_task.abort();
-    let (loop_counters, mut stop_reason) = loop_result?;
-    if let Some(e) = stream_error {
-        tracing::warn!(error = %e, "transition stream ended with an error");
-        stop_reason = format!("{stop_reason}; stream error: {e}");
-    }
+        .await?
+    };
+    let (link, loop_result) = tokio::join!(link, environment);
+    let (loop_counters, stop_reason) = loop_result?;
     let wall = started.elapsed().as_secs_f64();
     let summary = ActorSummary {
         name: opts.name.clone(),
         actor_id,
-        transitions_sent: stream.transitions_sent,
-        transitions_acked: stream.transitions_acked,
-        batches_sent: stream.batches_sent,
-        batches_acked: stream.batches_acked,
+        transitions_sent: link.transitions_sent,
+        transitions_acked: link.transitions_acked,
+        batches_sent: link.batches_sent,
+        batches_acked: link.batches_acked,
         env_steps_per_s: loop_counters.env_steps as f64 / wall,
+        link,
         loop_counters,
         wall_time_s: wall,
         stop_reason,
@@ -302,6 +184,7 @@ pub async fn run(
         name = %summary.name,
         sent = summary.transitions_sent,
         acked = summary.transitions_acked,
+        reconnects = summary.link.reconnects,
         "actor finished"
     );
     Ok(summary)

@@ -2,7 +2,6 @@
 //! and keeps the newest value; the environment loop reads it without blocking.
 
 use dvnav_common::core::{VariableSource, Variables};
-use dvnav_proto as pb;
 use std::sync::Arc;
 use tokio::sync::watch;
 
@@ -31,18 +30,5 @@ impl VariableClient {
 impl VariableSource for VariableClient {
     fn latest(&self) -> Option<Arc<Variables>> {
         self.rx.borrow().clone()
-    }
-}
-
-/// Domain form of a wire update.
-pub fn variables_from_proto(u: pb::VariablesUpdate) -> Variables {
-    let (stage, room) = u.assignment.map(|a| (a.stage, a.room)).unwrap_or_default();
-    Variables {
-        version: u.version,
-        policy: Arc::new(u.safetensors),
-        stage,
-        room,
-        warmup: u.warmup,
-        stop: u.stop,
     }
 }

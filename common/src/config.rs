@@ -246,11 +246,16 @@ impl Default for SacConfig {
 pub struct ReplayConfig {
     /// Transitions kept; the oldest is overwritten first.
     pub capacity: usize,
+    /// Write the whole buffer into every checkpoint (`replay.safetensors`), so a resumed run
+    /// samples exactly what it would have sampled. Off by default: a full buffer of the
+    /// default size is about 2 GB per checkpoint; without it a resumed learner waits for
+    /// `sac.learning_starts` fresh transitions before it trains again.
+    pub save_in_checkpoint: bool,
 }
 
 impl Default for ReplayConfig {
     fn default() -> Self {
-        Self { capacity: 500_000 }
+        Self { capacity: 500_000, save_in_checkpoint: false }
     }
 }
 
@@ -350,11 +355,14 @@ pub struct LoggingConfig {
     /// Start a new MCAP file after this many logged episodes, so a killed actor loses at most
     /// the open file's tail.
     pub episodes_per_file: u64,
+    /// Also start a new file once one reaches this size (MiB; 0: no size limit). Episodes never
+    /// straddle files, so a file may pass it by one episode.
+    pub max_file_mb: u64,
 }
 
 impl Default for LoggingConfig {
     fn default() -> Self {
-        Self { every_nth_episode: 10, episodes_per_file: 20 }
+        Self { every_nth_episode: 10, episodes_per_file: 20, max_file_mb: 64 }
     }
 }
 

@@ -90,7 +90,10 @@ pub fn sac_updates(
         sac_updates_per_s: updates as f64 / secs,
         ms_per_update: secs * 1e3 / updates as f64,
         batch,
-        threads: candle_core::utils::get_num_threads(),
+        threads: std::env::var("CANDLE_NUM_THREADS")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or_else(candle_core::utils::get_num_threads),
         device: "cpu".into(),
         network: format!(
             "conv({}x{}/{})-conv({}x{}/{})-fc{}-fc{}x2",

@@ -2,12 +2,25 @@
 //!
 //! Layout: `OUT/checkpoints/ckpt-<updates, 10 digits>/` with `state.safetensors` (networks,
 //! targets, log α, optimizer moments), `policy.safetensors` (the policy alone, what `dvnav eval`
-//! and actors load), `meta.json` (counters) and `config.toml`. A checkpoint is written into a
-//! `.tmp` directory and renamed into place, so a crash mid-write never leaves a directory with
-//! the final name; readers only consider directories with a `meta.json`.
+//! and actors load), `meta.json` (counters, curriculum, the learner's two random generators),
+//! `config.toml`, and `replay.safetensors` when `replay.save_in_checkpoint` is on. A
+//! checkpoint is written into a `.tmp` directory and renamed into place, so a crash mid-write
+//! never leaves a directory with the final name; readers only consider directories with a
+//! `meta.json`.
+//!
+//! Exact resume: the next update depends on the networks, targets, Adam moments and step
+//! counts, log α, the update counter (policy delay), the policy-noise generator and the batch
+//! the sampling generator draws from the replay buffer. All of them are here; with the replay
+//! buffer saved too, a resumed learner's next update is bit-for-bit the one it would have done
+//! (`learner/tests/sac/resume.rs`).
 
+use crate::curriculum::CurriculumState;
+use crate::replay::ReplayBuffer;
 use crate::sac::SacLearner;
+use crate::state::LearnerState;
+use candle_core::Tensor;
 use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 /// Counters stored beside the tensors.
@@ -27,17 +40,94 @@ pub struct CheckpointMeta {
     pub stage: u32,
     /// Run id.
     pub run_id: String,
+    /// Curriculum stage, success window and stage history (absent in older checkpoints).
+    #[serde(default)]
+    pub curriculum: Option<CurriculumState>,
+    /// The learner's policy-noise generator ([`SacLearner::noise_rng`]).
+    #[serde(default)]
+    pub noise_rng: Option<rand_pcg::Pcg64>,
+    /// The trainer's batch-sampling generator.
+    #[serde(default)]
+    pub sample_rng: Option<rand_pcg::Pcg64>,
+}
+
+/// The replay buffer's file inside a checkpoint directory, when it was saved.
+pub const REPLAY_FILE: &str = "replay.safetensors";
+
+/// A checkpoint read back: its directory, counters and state tensors.
+pub struct Checkpoint {
+    /// The checkpoint's directory.
+    pub dir: PathBuf,
+    /// Counters, curriculum and generators.
+    pub meta: CheckpointMeta,
+    /// Networks, targets, log α and optimizer moments by name.
+    pub tensors: HashMap<String, Tensor>,
+}
+
+impl Checkpoint {
+    /// Reads the newest complete checkpoint under `out_dir`, for `--resume`.
+    pub fn latest(out_dir: &Path) -> anyhow::Result<Self> {
+        let dir = latest(out_dir)?.ok_or_else(|| {
+            anyhow::anyhow!(
+                "no complete checkpoint under {}",
+                out_dir.join("checkpoints").display()
+            )
+        })?;
+        let (meta, tensors) = read(&dir)?;
+        Ok(Self { dir, meta, tensors })
+    }
+
+    /// Puts the networks, targets, log α, optimizer state, update counter and noise generator
+    /// into `learner`.
+    pub fn restore_learner(&self, learner: &mut SacLearner) -> anyhow::Result<()> {
+        learner.load_state(&self.tensors, self.meta.updates, self.meta.optimizer_steps)?;
+        if let Some(rng) = &self.meta.noise_rng {
+            learner.set_noise_rng(rng.clone());
+        }
+        Ok(())
+    }
+
+    /// Continues a run from this checkpoint (`--resume`): restores `learner` (see
+    /// [`Self::restore_learner`]) and `state` (counters, curriculum, weight version, and the
+    /// replay buffer when it was saved and fits this run's config), and returns the trainer's
+    /// batch-sampling generator when the checkpoint holds one.
+    pub fn resume(
+        &self,
+        learner: &mut SacLearner,
+        state: &LearnerState,
+    ) -> anyhow::Result<Option<rand_pcg::Pcg64>> {
+        self.restore_learner(learner)?;
+        let cfg = state.config();
+        let replay = match self.replay(cfg.obs_dim(), cfg.replay.capacity) {
+            Some(Ok(r)) => Some(r),
+            Some(Err(e)) => {
+                tracing::warn!(error = %e, "the checkpoint's replay buffer cannot be used; refilling it");
+                None
+            }
+            None => None,
+        };
+        state.restore(&self.meta, replay, learner.policy_safetensors()?);
+        Ok(self.meta.sample_rng.clone())
+    }
+
+    /// The saved replay buffer, if this checkpoint holds one.
+    pub fn replay(&self, obs_dim: usize, capacity: usize) -> Option<anyhow::Result<ReplayBuffer>> {
+        let path = self.dir.join(REPLAY_FILE);
+        path.exists().then(|| ReplayBuffer::load(&path, obs_dim, capacity))
+    }
 }
 
 /// Number of checkpoints kept; older ones are removed after a new one is in place.
 pub const KEEP: usize = 3;
 
-/// Writes a checkpoint under `out_dir/checkpoints` and returns its directory.
+/// Writes a checkpoint under `out_dir/checkpoints` (with the replay buffer when one is given)
+/// and returns its directory.
 pub fn write(
     out_dir: &Path,
     learner: &SacLearner,
     meta: &CheckpointMeta,
     config_toml: &str,
+    replay: Option<&ReplayBuffer>,
 ) -> anyhow::Result<PathBuf> {
     let root = out_dir.join("checkpoints");
     std::fs::create_dir_all(&root)?;
@@ -52,6 +142,11 @@ pub fn write(
     std::fs::write(tmp.join("state.safetensors"), state)?;
     std::fs::write(tmp.join("policy.safetensors"), learner.policy_safetensors()?)?;
     std::fs::write(tmp.join("config.toml"), config_toml)?;
+    if let Some(replay) = replay {
+        replay.save(&tmp.join(REPLAY_FILE))?;
+        std::fs::File::open(tmp.join(REPLAY_FILE))?.sync_all()?;
+    }
+    // meta.json last: readers take a directory with one as complete.
     std::fs::write(tmp.join("meta.json"), serde_json::to_vec_pretty(meta)?)?;
     for f in ["state.safetensors", "policy.safetensors", "config.toml", "meta.json"] {
         std::fs::File::open(tmp.join(f))?.sync_all()?;
@@ -128,7 +223,7 @@ mod tests {
         let a = learner(1);
         let meta =
             CheckpointMeta { updates: 0, env_steps: 77, run_id: "r".into(), ..Default::default() };
-        let path = write(dir.path(), &a, &meta, "[run]\n").unwrap();
+        let path = write(dir.path(), &a, &meta, "[run]\n", None).unwrap();
         // A crash mid-write leaves only a .tmp directory, which readers skip.
         std::fs::create_dir_all(dir.path().join("checkpoints/ckpt-0000000099.tmp")).unwrap();
         assert_eq!(latest(dir.path()).unwrap(), Some(path.clone()));
@@ -150,7 +245,7 @@ mod tests {
         let a = learner(1);
         for u in 1..=5 {
             let meta = CheckpointMeta { updates: u, ..Default::default() };
-            write(dir.path(), &a, &meta, "").unwrap();
+            write(dir.path(), &a, &meta, "", None).unwrap();
         }
         let names: Vec<String> = list(dir.path())
             .unwrap()

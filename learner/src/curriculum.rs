@@ -19,6 +19,17 @@ pub struct StageChange {
     pub updates: u64,
 }
 
+/// What a checkpoint keeps of the curriculum: the stage, the success window and the history.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CurriculumState {
+    /// Current stage.
+    pub stage: u32,
+    /// Outcomes (true: success) of the current stage's latest episodes, oldest first.
+    pub recent: Vec<bool>,
+    /// Stage changes so far.
+    pub changes: Vec<StageChange>,
+}
+
 /// Curriculum state owned by the learner.
 #[derive(Clone, Debug)]
 pub struct Curriculum {
@@ -32,6 +43,25 @@ impl Curriculum {
     /// Starts at stage 0.
     pub fn new(cfg: CurriculumConfig) -> Self {
         Self { cfg, stage: 0, recent: VecDeque::new(), changes: Vec::new() }
+    }
+
+    /// Continues from a checkpoint's state; the stage is clamped to the configured rooms.
+    pub fn restore(cfg: CurriculumConfig, state: CurriculumState) -> Self {
+        let stage = state.stage.min(cfg.rooms.len() as u32 - 1);
+        let mut recent: VecDeque<bool> = state.recent.into();
+        while recent.len() > cfg.window {
+            recent.pop_front();
+        }
+        Self { cfg, stage, recent, changes: state.changes }
+    }
+
+    /// The state a checkpoint keeps.
+    pub fn snapshot(&self) -> CurriculumState {
+        CurriculumState {
+            stage: self.stage,
+            recent: self.recent.iter().copied().collect(),
+            changes: self.changes.clone(),
+        }
     }
 
     /// Current stage.
@@ -127,6 +157,19 @@ mod tests {
         }
         assert_eq!(c.stage(), 0);
         assert_eq!(c.success_rate(), 0.0);
+    }
+
+    #[test]
+    fn a_restored_curriculum_continues_where_it_stopped() {
+        let mut a = Curriculum::new(cfg());
+        for s in [true, false, true] {
+            a.record(0, s, false, 0, 0);
+        }
+        let mut b = Curriculum::restore(cfg(), a.snapshot());
+        assert_eq!(b.snapshot(), a.snapshot());
+        // One more success fills the window at 3/4 in both.
+        assert_eq!(a.record(0, true, false, 5, 1), b.record(0, true, false, 5, 1));
+        assert_eq!((b.stage(), b.changes().len()), (1, 1));
     }
 
     #[test]

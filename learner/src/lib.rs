@@ -14,11 +14,13 @@
 //! - [`variable_source`]: versioned weights out to actors.
 //! - [`curriculum`]: the room curriculum rule.
 //! - [`trainer`]: the training thread. [`checkpoint`]: atomic checkpoints.
+//! - [`metrics`]: live metrics, Prometheus text over HTTP (`/metrics`) and `metrics.csv`.
 //! - [`run`]: a whole learner process, for `dvnav learner` and `dvnav train`.
 
 pub mod bench;
 pub mod checkpoint;
 pub mod curriculum;
+pub mod metrics;
 pub mod rate_limiter;
 pub mod replay;
 pub mod run;

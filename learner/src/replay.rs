@@ -121,10 +121,150 @@ impl ReplayBuffer {
     }
 }
 
+/// The replay buffer in a checkpoint (`replay.safetensors`, written when
+/// `replay.save_in_checkpoint` is on): every slot in slot order, so that sampling after a
+/// restore with the restored generator picks the same transitions; the slot written next and
+/// the capacity are in the file's metadata.
+impl ReplayBuffer {
+    /// Writes the buffer to `path` (safetensors: `obs`, `next_obs`, `actions`, `rewards` as
+    /// F32, `terminated` as U8), one array at a time.
+    pub fn save(&self, path: &std::path::Path) -> anyhow::Result<()> {
+        let n = self.len;
+        let f32s = |v: &[f32]| -> Vec<u8> { v.iter().flat_map(|x| x.to_le_bytes()).collect() };
+        let tensors = [
+            (
+                "actions",
+                Slot::new(safetensors::Dtype::F32, vec![n, ACTION_DIM], f32s(&self.actions)),
+            ),
+            (
+                "next_obs",
+                Slot::new(safetensors::Dtype::F32, vec![n, self.obs_dim], f32s(&self.next_obs)),
+            ),
+            ("obs", Slot::new(safetensors::Dtype::F32, vec![n, self.obs_dim], f32s(&self.obs))),
+            ("rewards", Slot::new(safetensors::Dtype::F32, vec![n], f32s(&self.rewards))),
+            (
+                "terminated",
+                Slot::new(
+                    safetensors::Dtype::U8,
+                    vec![n],
+                    self.terminated.iter().map(|&t| t as u8).collect(),
+                ),
+            ),
+        ];
+        let meta = std::collections::HashMap::from([
+            ("next".to_string(), self.next.to_string()),
+            ("capacity".to_string(), self.capacity.to_string()),
+        ]);
+        safetensors::tensor::serialize_to_file(tensors, Some(meta), path)?;
+        Ok(())
+    }
+
+    /// Reads a buffer written by [`Self::save`]; its capacity and observation size must equal
+    /// `capacity` and `obs_dim` (otherwise the slots would not line up).
+    pub fn load(path: &std::path::Path, obs_dim: usize, capacity: usize) -> anyhow::Result<Self> {
+        let bytes = std::fs::read(path)?;
+        let (_, header) = safetensors::SafeTensors::read_metadata(&bytes)?;
+        let meta = header.metadata().clone().unwrap_or_default();
+        let number = |k: &str| -> anyhow::Result<usize> {
+            meta.get(k)
+                .and_then(|v| v.parse().ok())
+                .ok_or_else(|| anyhow::anyhow!("{}: no `{k}` in the metadata", path.display()))
+        };
+        let (next, saved_capacity) = (number("next")?, number("capacity")?);
+        anyhow::ensure!(
+            saved_capacity == capacity,
+            "{}: saved with capacity {saved_capacity}, this run has {capacity}",
+            path.display()
+        );
+        let st = safetensors::SafeTensors::deserialize(&bytes)?;
+        let f32s = |name: &str, width: usize| -> anyhow::Result<Vec<f32>> {
+            let t = st.tensor(name)?;
+            anyhow::ensure!(t.dtype() == safetensors::Dtype::F32, "`{name}` is not F32");
+            anyhow::ensure!(t.shape().iter().skip(1).product::<usize>() == width, "`{name}` width");
+            Ok(t.data()
+                .chunks_exact(4)
+                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect())
+        };
+        let rewards = f32s("rewards", 1)?;
+        let len = rewards.len();
+        let buffer = Self {
+            obs_dim,
+            capacity,
+            obs: f32s("obs", obs_dim)?,
+            next_obs: f32s("next_obs", obs_dim)?,
+            actions: f32s("actions", ACTION_DIM)?,
+            rewards,
+            terminated: st.tensor("terminated")?.data().iter().map(|&b| b != 0).collect(),
+            len,
+            next,
+        };
+        anyhow::ensure!(
+            len <= capacity
+                && next < capacity
+                && buffer.obs.len() == len * obs_dim
+                && buffer.next_obs.len() == len * obs_dim
+                && buffer.actions.len() == len * ACTION_DIM
+                && buffer.terminated.len() == len,
+            "{}: inconsistent replay arrays",
+            path.display()
+        );
+        Ok(buffer)
+    }
+}
+
+/// One array of [`ReplayBuffer::save`], as safetensors wants it.
+struct Slot {
+    dtype: safetensors::Dtype,
+    shape: Vec<usize>,
+    bytes: Vec<u8>,
+}
+
+impl Slot {
+    fn new(dtype: safetensors::Dtype, shape: Vec<usize>, bytes: Vec<u8>) -> Self {
+        Self { dtype, shape, bytes }
+    }
+}
+
+impl safetensors::View for Slot {
+    fn dtype(&self) -> safetensors::Dtype {
+        self.dtype
+    }
+    fn shape(&self) -> &[usize] {
+        &self.shape
+    }
+    fn data(&self) -> std::borrow::Cow<'_, [u8]> {
+        std::borrow::Cow::Borrowed(&self.bytes)
+    }
+    fn data_len(&self) -> usize {
+        self.bytes.len()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use rand::SeedableRng;
+
+    #[test]
+    fn a_saved_buffer_samples_the_same_batches_after_loading() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("replay.safetensors");
+        let mut r = ReplayBuffer::new(3, 4);
+        r.insert(&batch(0, 6)); // full, wrapped: the next write goes to slot 2
+        r.save(&path).unwrap();
+        let mut loaded = ReplayBuffer::load(&path, 3, 4).unwrap();
+        assert!(ReplayBuffer::load(&path, 3, 5).is_err(), "another capacity is refused");
+        let (mut a, mut b) = (Batch::default(), Batch::default());
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
+        r.sample_into(8, &mut rng.clone(), &mut a);
+        loaded.sample_into(8, &mut rng, &mut b);
+        assert_eq!(a, b);
+        // And the next insert overwrites the same (oldest) slot.
+        r.insert(&batch(6, 1));
+        loaded.insert(&batch(6, 1));
+        assert_eq!((r.rewards.clone(), r.next), (loaded.rewards.clone(), loaded.next));
+    }
 
     fn batch(start: usize, n: usize) -> TransitionBatch {
         let mut b = TransitionBatch::with_capacity(3, n);

@@ -1,5 +1,6 @@
 //! A whole learner process: state, trainer thread, gRPC server, end of run and summary.
 
+use crate::checkpoint::Checkpoint;
 use crate::sac::{SacLearner, SacNetworks};
 use crate::service::LearnerService;
 use crate::state::{LearnerState, StatusSnapshot};
@@ -26,6 +27,11 @@ pub struct LearnerOptions {
     pub token: Option<String>,
     /// Run id (defaults to the directory name).
     pub run_id: Option<String>,
+    /// Continue from the newest complete checkpoint in `out_dir` (`--resume`).
+    pub resume: bool,
+    /// Serve Prometheus metrics (`GET /metrics`) on this listener, bound by the caller
+    /// (`--metrics-addr`). `metrics.csv` in `out_dir` is written either way.
+    pub metrics_listener: Option<Arc<std::net::TcpListener>>,
 }
 
 /// The learner's part of `run_summary.json`.
@@ -61,20 +67,61 @@ pub async fn run(
 
     let device = Device::Cpu;
     let nets = SacNetworks::new(&cfg, cfg.run.seed, &device)?;
-    let learner = SacLearner::new(nets, cfg.sac.clone(), device, cfg.run.seed ^ 0x0005_ac00)?;
+    let mut learner = SacLearner::new(nets, cfg.sac.clone(), device, cfg.run.seed ^ 0x0005_ac00)?;
+    let mut sample_rng = trainer::sample_rng(cfg.run.seed);
     let state = Arc::new(LearnerState::new(
         cfg.clone(),
         run_id,
         opts.token.clone(),
         learner.policy_safetensors()?,
     ));
+    if opts.resume {
+        let ckpt = Checkpoint::latest(&opts.out_dir)?;
+        sample_rng = ckpt.resume(&mut learner, &state)?.unwrap_or(sample_rng);
+        tracing::info!(
+            checkpoint = %ckpt.dir.display(),
+            updates = ckpt.meta.updates,
+            env_steps = ckpt.meta.env_steps,
+            stage = state.curriculum_state().stage,
+            "resumed"
+        );
+    }
 
     let trainer = {
         let state = state.clone();
         let out = opts.out_dir.clone();
         std::thread::Builder::new()
             .name("trainer".into())
-            .spawn(move || trainer::train(state, learner, out))?
+            .spawn(move || trainer::train(state, learner, sample_rng, out))?
+    };
+
+    // Live metrics: a sample every few seconds into metrics.csv, and /metrics over HTTP.
+    let metrics = {
+        let mut stop = state.shutdown_signal();
+        tokio::spawn(crate::metrics::record(
+            state.clone(),
+            Some(opts.out_dir.join("metrics.csv")),
+            async move {
+                let _ = stop.wait_for(|s| *s).await;
+            },
+        ))
+    };
+    let metrics_http = match &opts.metrics_listener {
+        Some(l) => {
+            let l = l.try_clone()?;
+            l.set_nonblocking(true)?;
+            let l = TcpListener::from_std(l)?;
+            tracing::info!(addr = %l.local_addr()?, "serving Prometheus metrics at /metrics");
+            let mut stop = state.shutdown_signal();
+            Some(tokio::spawn(crate::metrics::serve(
+                l,
+                async move {
+                    let _ = stop.wait_for(|s| *s).await;
+                },
+                state.clone(),
+            )))
+        }
+        None => None,
     };
 
     let service = LearnerService::server(state.clone());
@@ -104,15 +151,19 @@ pub async fn run(
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
     state.begin_shutdown();
-    let learner = tokio::task::spawn_blocking(move || trainer.join())
+    let (learner, sample_rng) = tokio::task::spawn_blocking(move || trainer.join())
         .await?
         .map_err(|_| anyhow::anyhow!("the trainer thread panicked"))??;
     let final_checkpoint = if learner.updates() > 0 {
-        Some(trainer::write_checkpoint(&state, &learner, &opts.out_dir)?)
+        Some(trainer::write_checkpoint(&state, &learner, &sample_rng, &opts.out_dir)?)
     } else {
         None
     };
     server.await??;
+    metrics.await??;
+    if let Some(h) = metrics_http {
+        h.await??;
+    }
 
     let status = state.status();
     let wall = started.elapsed().as_secs_f64();

@@ -84,6 +84,15 @@ pub fn status_to_proto(s: &StatusSnapshot) -> pb::StatusReply {
         alpha: s.alpha as f32,
         done: s.done,
         step_budget: s.step_budget,
+        env_steps_per_s: s.live.env_steps_per_s,
+        updates_per_s: s.live.updates_per_s,
+        connected_actors: s.actors.iter().filter(|a| a.connected).count() as u32,
+        policy_lag_mean: if s.live.recent_policy_lag.count > 0 {
+            s.live.recent_policy_lag.mean()
+        } else {
+            0.0
+        },
+        policy_lag_max: s.live.recent_policy_lag.max,
         actors: s
             .actors
             .iter()
@@ -127,6 +136,7 @@ impl Learner for LearnerService {
             }),
             actor_seed: reg.actor_seed,
             run_id: self.state.run_id().to_string(),
+            next_sequence: reg.next_sequence,
         }))
     }
 
@@ -159,8 +169,13 @@ impl Learner for LearnerService {
                         }
                         let sequence = batch.sequence;
                         match state.ingest(batch).await {
-                            Ok(accepted) => {
-                                if tx.send(Ok(pb::BatchAck { sequence, accepted })).await.is_err() {
+                            Ok(ack) => {
+                                let ack = pb::BatchAck {
+                                    sequence,
+                                    accepted: ack.accepted,
+                                    duplicate: ack.duplicate,
+                                };
+                                if tx.send(Ok(ack)).await.is_err() {
                                     break "actor went away".to_string();
                                 }
                             }

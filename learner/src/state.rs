@@ -72,6 +72,10 @@ pub struct ActorCounters {
     pub collisions: u64,
     /// Episodes that timed out.
     pub timeouts: u64,
+    /// Sequence number expected next; lower ones are resends of batches already inserted.
+    pub next_sequence: u64,
+    /// Resent batches recognised and acknowledged without inserting them again.
+    pub duplicate_batches: u64,
 }
 
 /// What `Status` returns and the run summary is built from.
@@ -111,6 +115,8 @@ pub struct StatusSnapshot {
     pub stage_changes: Vec<StageChange>,
     /// Every loss seen so far was finite.
     pub losses_finite: bool,
+    /// Rates, policy lag and per-stage outcomes ([`crate::metrics`]).
+    pub live: crate::metrics::LiveSnapshot,
 }
 
 #[derive(Debug)]
@@ -133,6 +139,17 @@ pub struct Registration {
     pub actor_id: u32,
     /// Seed for its environments.
     pub actor_seed: u64,
+    /// The batch sequence number expected next from this actor name.
+    pub next_sequence: u64,
+}
+
+/// The learner's answer to one batch.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Ack {
+    /// Transitions inserted into the replay buffer.
+    pub accepted: u32,
+    /// The batch was a resend of one already inserted; nothing was inserted.
+    pub duplicate: bool,
 }
 
 /// The learner's shared state (see the module docs).
@@ -147,6 +164,7 @@ pub struct LearnerState {
     variables: VariableSource,
     done_tx: watch::Sender<bool>,
     shutdown_tx: watch::Sender<bool>,
+    live: crate::metrics::LiveMetrics,
 }
 
 impl LearnerState {
@@ -192,6 +210,7 @@ impl LearnerState {
             variables,
             done_tx: watch::channel(false).0,
             shutdown_tx: watch::channel(false).0,
+            live: Default::default(),
         }
     }
 
@@ -213,6 +232,11 @@ impl LearnerState {
     /// Weight distribution.
     pub fn variables(&self) -> &VariableSource {
         &self.variables
+    }
+
+    /// Live metrics (policy lag, per-stage outcomes, rates) for `/metrics` and `metrics.csv`.
+    pub fn live(&self) -> &crate::metrics::LiveMetrics {
+        &self.live
     }
 
     /// Checks the shared token, when one is configured.
@@ -257,10 +281,11 @@ impl LearnerState {
             ..Default::default()
         });
         entry.registrations += 1;
-        tracing::info!(actor_id, name, "actor registered");
+        let next_sequence = entry.next_sequence;
+        tracing::info!(actor_id, name, registrations = entry.registrations, "actor registered");
         let actor_seed =
             self.cfg.run.seed.wrapping_mul(1_000_003).wrapping_add(actor_id as u64 + 1);
-        Ok(Registration { actor_id, actor_seed })
+        Ok(Registration { actor_id, actor_seed, next_sequence })
     }
 
     /// The config text sent to actors.
@@ -276,12 +301,20 @@ impl LearnerState {
     }
 
     /// Validates a batch and inserts it into the replay buffer, waiting first while ingestion is
-    /// ahead of training (backpressure). Returns the transitions accepted.
-    pub async fn ingest(&self, msg: pb::TransitionBatch) -> Result<u32, LearnerError> {
+    /// ahead of training (backpressure). A batch whose sequence number was already inserted (a
+    /// resend after a reconnect) is acknowledged as a duplicate and not inserted again.
+    pub async fn ingest(&self, msg: pb::TransitionBatch) -> Result<Ack, LearnerError> {
         let actor_id = msg.actor_id;
         let claimed = msg.count as u64;
-        if !self.counters.lock().expect("counters lock").actors.contains_key(&actor_id) {
-            return Err(LearnerError::UnknownActor(actor_id));
+        let sequence = msg.sequence;
+        {
+            let mut c = self.counters.lock().expect("counters lock");
+            let a = c.actors.get_mut(&actor_id).ok_or(LearnerError::UnknownActor(actor_id))?;
+            if sequence < a.next_sequence {
+                a.duplicate_batches += 1;
+                tracing::debug!(actor_id, sequence, "duplicate batch acknowledged, not inserted");
+                return Ok(Ack { accepted: 0, duplicate: true });
+            }
         }
         let batch = match wire::batch_from_proto(msg, self.cfg.obs_dim()) {
             Ok(b) => b,
@@ -299,6 +332,7 @@ impl LearnerState {
         self.replay.lock().expect("replay lock").insert(&batch);
         let n = batch.len() as u64;
         self.limiter.inserted(n);
+        self.live.record_batch(&batch, self.variables.current().version);
 
         let (_, updates) = self.limiter.counters();
         let mut c = self.counters.lock().expect("counters lock");
@@ -307,6 +341,7 @@ impl LearnerState {
         let a = c.actors.get_mut(&actor_id).expect("checked above");
         a.transitions_received += n;
         a.batches += 1;
+        a.next_sequence = sequence + 1;
         a.episodes += batch.episodes.len() as u64;
         for &v in &batch.policy_versions {
             a.min_policy_version = a.min_policy_version.min(v);
@@ -343,12 +378,59 @@ impl LearnerState {
         let (stage, room, done) = (c.curriculum.stage(), c.curriculum.room().to_string(), c.done);
         drop(c);
         self.variables.set_run_state(stage, &room, warmup, done);
-        Ok(n as u32)
+        Ok(Ack { accepted: n as u32, duplicate: false })
     }
 
     /// Samples a training batch.
     pub fn sample(&self, size: usize, rng: &mut impl rand::Rng, out: &mut Batch) {
         self.replay.lock().expect("replay lock").sample_into(size, rng, out);
+    }
+
+    /// Runs `f` on the replay buffer (checkpoints write it); ingestion waits meanwhile.
+    pub fn with_replay<R>(&self, f: impl FnOnce(&ReplayBuffer) -> R) -> R {
+        f(&self.replay.lock().expect("replay lock"))
+    }
+
+    /// The curriculum's stage, window and history, for a checkpoint.
+    pub fn curriculum_state(&self) -> crate::curriculum::CurriculumState {
+        self.counters.lock().expect("counters lock").curriculum.snapshot()
+    }
+
+    /// Continues a run from a checkpoint (`--resume`), before any actor connects: counters,
+    /// curriculum, weight version (`policy` is the restored policy) and, when the checkpoint
+    /// holds one, the replay buffer. Without a saved buffer ingestion refills it, and the rate
+    /// limiter holds training back until `sac.learning_starts` new transitions are in, then
+    /// keeps the replay ratio from there.
+    pub fn restore(
+        &self,
+        meta: &crate::checkpoint::CheckpointMeta,
+        replay: Option<ReplayBuffer>,
+        policy: Vec<u8>,
+    ) {
+        let mut c = self.counters.lock().expect("counters lock");
+        c.received = meta.env_steps;
+        c.episodes = meta.episodes;
+        let curriculum = meta.curriculum.clone().unwrap_or(crate::curriculum::CurriculumState {
+            stage: meta.stage,
+            ..Default::default()
+        });
+        c.curriculum = Curriculum::restore(self.cfg.curriculum.clone(), curriculum);
+        let inserted = match replay {
+            Some(r) => {
+                *self.replay.lock().expect("replay lock") = r;
+                meta.env_steps
+            }
+            // The count at which the updates done so far are exactly what the ratio allows
+            // once `learning_starts` more transitions arrive (see `RateLimiter::updates_allowed`).
+            None => ((meta.updates as f64 / self.cfg.sac.updates_per_env_step).ceil() as u64)
+                .saturating_sub(1),
+        };
+        self.limiter.restore(inserted, meta.updates);
+        let warmup = c.episodes < self.cfg.warmup.pid_episodes;
+        let (stage, room) = (c.curriculum.stage(), c.curriculum.room().to_string());
+        drop(c);
+        self.variables.restore(meta.weight_version, policy);
+        self.variables.set_run_state(stage, &room, warmup, false);
     }
 
     /// Records the metrics of a finished update.
@@ -422,6 +504,7 @@ impl LearnerState {
                 .collect(),
             stage_changes: c.curriculum.changes().to_vec(),
             losses_finite: c.losses_finite,
+            live: self.live.snapshot(),
         }
     }
 }
@@ -468,17 +551,23 @@ mod tests {
         let s = LearnerState::new(cfg.clone(), "r".into(), None, vec![]);
         let id = s.register("a", dvnav_proto::PROTOCOL_VERSION).unwrap().actor_id;
         assert!(matches!(s.ingest(batch(&cfg, 2, 9, 0)).await, Err(LearnerError::UnknownActor(9))));
-        assert_eq!(s.ingest(batch(&cfg, 3, id, 0)).await.unwrap(), 3);
+        assert_eq!(s.ingest(batch(&cfg, 3, id, 0)).await.unwrap().accepted, 3);
         assert!(!s.variables().current().warmup, "one warm-up episode was configured");
         let mut bad = batch(&cfg, 2, id, 1);
         bad.rewards[0] = f32::INFINITY;
         assert!(matches!(s.ingest(bad).await, Err(LearnerError::Malformed(_))));
         assert!(!*s.done_signal().borrow());
+        // A resend of batch 0 (after a reconnect) is acknowledged but not inserted again.
+        let dup = s.ingest(batch(&cfg, 3, id, 0)).await.unwrap();
+        assert_eq!(dup, Ack { accepted: 0, duplicate: true });
         s.ingest(batch(&cfg, 3, id, 2)).await.unwrap();
+        // A restarted actor process is told where to continue its numbering.
+        assert_eq!(s.register("a", dvnav_proto::PROTOCOL_VERSION).unwrap().next_sequence, 3);
         let st = s.status();
         assert_eq!((st.transitions_received, st.transitions_rejected, st.episodes), (6, 2, 2));
         assert_eq!(st.actors[0].transitions_received, 6);
         assert_eq!(st.actors[0].transitions_rejected, 2);
+        assert_eq!(st.actors[0].duplicate_batches, 1);
         assert!(st.done && *s.done_signal().borrow());
         assert!(s.variables().current().stop);
     }

@@ -3,21 +3,28 @@
 
 use crate::checkpoint::{self, CheckpointMeta};
 use crate::replay::Batch;
-use crate::sac::SacLearner;
+use crate::sac::{SacLearner, UpdateMetrics};
 use crate::state::LearnerState;
 use rand::SeedableRng;
+use rand_pcg::Pcg64;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
-/// Runs until the rate limiter closes, then hands the learner back for the final checkpoint.
+/// The batch-sampling generator of a fresh run with root seed `seed`.
+pub fn sample_rng(seed: u64) -> Pcg64 {
+    Pcg64::seed_from_u64(seed ^ 0x05ac_1ea7)
+}
+
+/// Runs until the rate limiter closes, then hands the learner and the sampling generator back
+/// for the final checkpoint.
 pub fn train(
     state: Arc<LearnerState>,
     mut learner: SacLearner,
+    mut rng: Pcg64,
     out_dir: PathBuf,
-) -> anyhow::Result<SacLearner> {
+) -> anyhow::Result<(SacLearner, Pcg64)> {
     let cfg = state.config().clone();
-    let mut rng = rand_pcg::Pcg64::seed_from_u64(cfg.run.seed ^ 0x05ac_1ea7);
     let mut batch = Batch::default();
     let limiter = state.limiter();
     loop {
@@ -27,27 +34,40 @@ pub fn train(
             }
             continue;
         }
-        state.sample(cfg.sac.batch_size, &mut rng, &mut batch);
-        let metrics = learner.update(&batch)?;
-        limiter.updated();
-        state.record_update(metrics);
+        train_step(&state, &mut learner, &mut rng, &mut batch)?;
         let updates = learner.updates();
         if updates.is_multiple_of(cfg.learner.publish_every_updates) {
             let version = state.variables().publish_weights(learner.policy_safetensors()?);
             tracing::debug!(updates, version, "published weights");
         }
         if updates.is_multiple_of(cfg.learner.checkpoint_every_updates) {
-            let path = write_checkpoint(&state, &learner, &out_dir)?;
+            let path = write_checkpoint(&state, &learner, &rng, &out_dir)?;
             tracing::info!(updates, path = %path.display(), "checkpoint written");
         }
     }
-    Ok(learner)
+    Ok((learner, rng))
 }
 
-/// Writes a checkpoint with the state's current counters.
+/// One update: sample a batch with `rng`, update, count it.
+pub fn train_step(
+    state: &LearnerState,
+    learner: &mut SacLearner,
+    rng: &mut Pcg64,
+    batch: &mut Batch,
+) -> anyhow::Result<UpdateMetrics> {
+    state.sample(state.config().sac.batch_size, rng, batch);
+    let metrics = learner.update(batch)?;
+    state.limiter().updated();
+    state.record_update(metrics);
+    Ok(metrics)
+}
+
+/// Writes a checkpoint with the state's current counters, the curriculum, both generators and,
+/// when `replay.save_in_checkpoint` is on, the replay buffer.
 pub fn write_checkpoint(
     state: &LearnerState,
     learner: &SacLearner,
+    sample_rng: &Pcg64,
     out_dir: &std::path::Path,
 ) -> anyhow::Result<PathBuf> {
     let st = state.status();
@@ -59,6 +79,15 @@ pub fn write_checkpoint(
         optimizer_steps: learner.optimizer_steps(),
         stage: st.stage,
         run_id: st.run_id.clone(),
+        curriculum: Some(state.curriculum_state()),
+        noise_rng: Some(learner.noise_rng().clone()),
+        sample_rng: Some(sample_rng.clone()),
     };
-    checkpoint::write(out_dir, learner, &meta, state.config_toml())
+    if state.config().replay.save_in_checkpoint {
+        state.with_replay(|r| {
+            checkpoint::write(out_dir, learner, &meta, state.config_toml(), Some(r))
+        })
+    } else {
+        checkpoint::write(out_dir, learner, &meta, state.config_toml(), None)
+    }
 }

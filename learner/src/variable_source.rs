@@ -42,6 +42,17 @@ impl VariableSource {
         version
     }
 
+    /// Continues a resumed run's numbering: `policy` becomes version `version` (what the
+    /// checkpoint had published last), so versions keep increasing across a resume.
+    pub fn restore(&self, version: u64, policy: Vec<u8>) {
+        self.tx.send_modify(|v| {
+            let mut next = (**v).clone();
+            next.version = version.max(1);
+            next.policy = Arc::new(policy);
+            *v = Arc::new(next);
+        });
+    }
+
     /// Changes stage, warm-up or stop flags without a new weight version; notifies only when
     /// something changed.
     pub fn set_run_state(&self, stage: u32, room: &str, warmup: bool, stop: bool) {

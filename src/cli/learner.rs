@@ -25,10 +25,25 @@ pub struct LearnerArgs {
     /// File holding the shared access token actors must present (or set DVNAV_TOKEN).
     #[arg(long)]
     pub token_file: Option<PathBuf>,
+    /// Continue from the newest complete checkpoint in `--out`: networks, optimizers,
+    /// temperature, counters, curriculum, random generators (and the replay buffer when it was
+    /// saved). Without `--config`, the run directory's `config.toml` is used.
+    #[arg(long)]
+    pub resume: bool,
+    /// Serve Prometheus metrics over HTTP at this address (`GET /metrics`), e.g.
+    /// `127.0.0.1:9100`; port 0 picks a free port. The address bound is logged and written to
+    /// `OUT/metrics.addr`. `OUT/metrics.csv` is written with or without it.
+    #[arg(long, value_name = "ADDR")]
+    pub metrics_addr: Option<String>,
 }
 
 pub fn run(args: LearnerArgs) -> anyhow::Result<ExitCode> {
-    let mut cfg = super::load_config(args.config.as_ref())?;
+    let run_config = args.out.join("config.toml");
+    let mut cfg = if args.resume && args.config.is_none() && run_config.exists() {
+        super::load_config(Some(&run_config))?
+    } else {
+        super::load_config(args.config.as_ref())?
+    };
     if let Some(s) = args.steps {
         cfg.run.steps = s;
     }
@@ -46,15 +61,41 @@ pub fn run(args: LearnerArgs) -> anyhow::Result<ExitCode> {
             .map_err(|e| anyhow::anyhow!("cannot listen on {}: {e}", args.listen))?;
         let addr = listener.local_addr()?;
         tracing::info!(%addr, out = %args.out.display(), "learner listening");
+        // Bound before the address file appears, so a supervisor that sees it finds both.
+        let metrics_listener = match &args.metrics_addr {
+            Some(a) => {
+                let l = std::net::TcpListener::bind(a)
+                    .map_err(|e| anyhow::anyhow!("cannot serve metrics on {a}: {e}"))?;
+                let bound = l.local_addr()?;
+                std::fs::create_dir_all(&args.out)?;
+                let file = args.out.join("metrics.addr");
+                let tmp = file.with_extension("tmp");
+                std::fs::write(&tmp, bound.to_string())?;
+                std::fs::rename(&tmp, &file)?;
+                Some(std::sync::Arc::new(l))
+            }
+            None => None,
+        };
         if let Some(f) = &args.addr_file {
+            // Written whole or not at all: a supervisor polling for it never reads half an address.
+            if let Some(parent) = f.parent().filter(|p| !p.as_os_str().is_empty()) {
+                std::fs::create_dir_all(parent)?;
+            }
             let tmp = f.with_extension("tmp");
-            std::fs::write(&tmp, addr.to_string())?;
-            std::fs::rename(&tmp, f)?;
+            std::fs::write(&tmp, addr.to_string())
+                .and_then(|()| std::fs::rename(&tmp, f))
+                .map_err(|e| anyhow::anyhow!("cannot write --addr-file {}: {e}", f.display()))?;
         }
         let summary = dvnav_learner::run(
             cfg,
             listener,
-            dvnav_learner::LearnerOptions { out_dir: args.out.clone(), token, run_id: None },
+            dvnav_learner::LearnerOptions {
+                out_dir: args.out.clone(),
+                token,
+                run_id: None,
+                resume: args.resume,
+                metrics_listener,
+            },
             super::shutdown_signal(),
         )
         .await?;

@@ -4,6 +4,7 @@ mod actor;
 mod bench;
 mod inspect;
 mod learner;
+mod plot;
 mod train;
 
 use clap::{Parser, Subcommand};
@@ -30,8 +31,11 @@ enum Command {
     Learner(learner::LearnerArgs),
     /// Run only an actor that connects to a learner.
     Actor(actor::ActorArgs),
-    /// Summarize MCAP episode logs (a file, a directory, or a run directory).
+    /// Summarize, list, detail or check MCAP episode logs (a file, a directory, or a run
+    /// directory).
     Inspect(inspect::InspectArgs),
+    /// Draw figures from episode logs (PNG).
+    Plot(plot::PlotArgs),
     /// Benchmarks that print figures (JSON with --json).
     Bench(bench::BenchArgs),
 }
@@ -60,6 +64,7 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Learner(a) => learner::run(a),
         Command::Actor(a) => actor::run(a),
         Command::Inspect(a) => inspect::run(a),
+        Command::Plot(a) => plot::run(a),
         Command::Bench(a) => bench::run(a),
     }
 }

@@ -30,6 +30,15 @@ pub struct TrainArgs {
     /// Run directory (must not hold another run). Default: runs/<date>-<time>.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Continue the run in DIR: the learner restarts from DIR's newest checkpoint with DIR's
+    /// `config.toml` (`dvnav learner --resume`) and fresh actors join it. `--steps` may raise
+    /// the budget.
+    #[arg(long, value_name = "DIR", conflicts_with_all = ["out", "config", "seed"])]
+    pub resume: Option<PathBuf>,
+    /// Serve the learner's Prometheus metrics at this address (`GET /metrics`), e.g.
+    /// `127.0.0.1:9100` (port 0: a free port, printed at start).
+    #[arg(long, value_name = "ADDR")]
+    pub metrics_addr: Option<String>,
     /// Seconds between progress lines when stderr is not a terminal.
     #[arg(long, default_value_t = 10)]
     pub progress_every_s: u64,
@@ -51,7 +60,8 @@ impl Proc {
 }
 
 fn spawn(exe: &Path, args: &[String], log: &Path, threads: usize) -> anyhow::Result<Child> {
-    let file = std::fs::File::create(log)?;
+    // Appending keeps the earlier logs of a resumed run.
+    let file = std::fs::OpenOptions::new().create(true).append(true).open(log)?;
     let err = file.try_clone()?;
     Ok(Command::new(exe)
         .args(args)
@@ -85,7 +95,10 @@ fn signal(child: &Child, sig: i32) {
 
 pub fn run(args: TrainArgs) -> anyhow::Result<ExitCode> {
     anyhow::ensure!(args.actors >= 1, "--actors must be at least 1");
-    let mut cfg: Config = super::load_config(args.config.as_ref())?;
+    let mut cfg: Config = match &args.resume {
+        Some(dir) => Config::load(&dir.join("config.toml"))?,
+        None => super::load_config(args.config.as_ref())?,
+    };
     if let Some(s) = args.steps {
         cfg.run.steps = s;
     }
@@ -93,8 +106,14 @@ pub fn run(args: TrainArgs) -> anyhow::Result<ExitCode> {
         cfg.run.seed = s;
     }
     cfg.validate()?;
-    let out = args.out.clone().unwrap_or_else(default_out);
-    if out.exists() && std::fs::read_dir(&out)?.next().is_some() {
+    let out = args.resume.clone().or_else(|| args.out.clone()).unwrap_or_else(default_out);
+    if args.resume.is_some() {
+        anyhow::ensure!(
+            dvnav_learner::checkpoint::latest(&out)?.is_some(),
+            "{} holds no complete checkpoint to resume from",
+            out.display()
+        );
+    } else if out.exists() && std::fs::read_dir(&out)?.next().is_some() {
         anyhow::bail!(
             "{} already holds files (another run?); choose another --out or remove it",
             out.display()
@@ -109,25 +128,31 @@ pub fn run(args: TrainArgs) -> anyhow::Result<ExitCode> {
     let started = Instant::now();
 
     let addr_file = out.join("learner.addr");
+    // A resumed run's directory still has the old learner's address.
+    let _ = std::fs::remove_file(&addr_file);
     let learner_log = out.join("logs/learner.log");
+    let mut learner_args: Vec<String> = vec![
+        "learner".into(),
+        "--config".into(),
+        config_path.display().to_string(),
+        "--out".into(),
+        out.display().to_string(),
+        "--listen".into(),
+        "127.0.0.1:0".into(),
+        "--addr-file".into(),
+        addr_file.display().to_string(),
+    ];
+    if args.resume.is_some() {
+        learner_args.push("--resume".into());
+    }
+    let metrics_addr_file = out.join("metrics.addr");
+    let _ = std::fs::remove_file(&metrics_addr_file);
+    if let Some(a) = &args.metrics_addr {
+        learner_args.extend(["--metrics-addr".into(), a.clone()]);
+    }
     let mut learner = Proc {
         name: "learner".into(),
-        child: spawn(
-            &exe,
-            &[
-                "learner".into(),
-                "--config".into(),
-                config_path.display().to_string(),
-                "--out".into(),
-                out.display().to_string(),
-                "--listen".into(),
-                "127.0.0.1:0".into(),
-                "--addr-file".into(),
-                addr_file.display().to_string(),
-            ],
-            &learner_log,
-            cores,
-        )?,
+        child: spawn(&exe, &learner_args, &learner_log, cores)?,
         status: None,
     };
     eprintln!(
@@ -155,6 +180,11 @@ pub fn run(args: TrainArgs) -> anyhow::Result<ExitCode> {
         std::thread::sleep(Duration::from_millis(50));
     };
     let url = format!("http://{addr}");
+    if args.metrics_addr.is_some()
+        && let Ok(a) = std::fs::read_to_string(&metrics_addr_file)
+    {
+        eprintln!("dvnav train: metrics at http://{}/metrics", a.trim());
+    }
 
     let mut actors: Vec<Proc> = Vec::new();
     for i in 0..args.actors {
@@ -218,23 +248,9 @@ pub fn run(args: TrainArgs) -> anyhow::Result<ExitCode> {
             && let Ok(st) = rt.block_on(c.status(dvnav_proto::StatusRequest {}))
         {
             let s = st.into_inner();
-            let elapsed = started.elapsed().as_secs_f64();
-            last_line = format!(
-                "steps {}/{} ({:.0}%) | {:.0} steps/s | updates {} ({:.1}/s) | episodes {} | stage {} success {:.0}% | weights v{} | critic {:.3}",
-                s.transitions_received,
-                s.step_budget,
-                100.0 * s.transitions_received as f64 / s.step_budget.max(1) as f64,
-                s.transitions_received as f64 / elapsed,
-                s.updates,
-                s.updates as f64 / elapsed,
-                s.episodes,
-                s.stage,
-                100.0 * s.success_rate,
-                s.weight_version,
-                s.critic_loss,
-            );
+            last_line = progress_line(&s);
             if tty {
-                eprint!("\r{last_line:<150}");
+                eprint!("\r{last_line:<170}");
             } else if last_print.elapsed() >= Duration::from_secs(args.progress_every_s) {
                 eprintln!("{last_line}");
                 last_print = Instant::now();
@@ -285,6 +301,30 @@ pub fn run(args: TrainArgs) -> anyhow::Result<ExitCode> {
         return Ok(ExitCode::FAILURE);
     }
     Ok(if clean { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+}
+
+/// The progress line: the same headline figures as the learner's `/metrics` (rates over the
+/// last ~10 s, policy lag of the last ~2 s).
+fn progress_line(s: &dvnav_proto::StatusReply) -> String {
+    format!(
+        "steps {}/{} ({:.0}%) {:.0}/s | updates {} {:.1}/s | replay {} | actors {} | lag {:.1}/{} | episodes {} | stage {} {:.0}% | v{} | critic {:.3} α {:.3}",
+        s.transitions_received,
+        s.step_budget,
+        100.0 * s.transitions_received as f64 / s.step_budget.max(1) as f64,
+        s.env_steps_per_s,
+        s.updates,
+        s.updates_per_s,
+        s.replay_size,
+        s.connected_actors,
+        s.policy_lag_mean,
+        s.policy_lag_max,
+        s.episodes,
+        s.stage,
+        100.0 * s.success_rate,
+        s.weight_version,
+        s.critic_loss,
+        s.alpha,
+    )
 }
 
 fn read_json(path: &Path) -> Option<Value> {

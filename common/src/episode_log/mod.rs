@@ -5,7 +5,8 @@
 //!
 //! | topic | schema | when |
 //! |---|---|---|
-//! | [`/scene`](TOPIC_SCENE) | `foxglove.SceneUpdate` | episode start: walls, obstacles, goal, footprint |
+//! | [`/scene`](TOPIC_SCENE) | `foxglove.SceneUpdate` | episode start: walls, obstacles, goal, footprint (and the DVST-scaled footprint when μ ≠ 1) |
+//! | [`/path`](TOPIC_PATH) | `foxglove.SceneUpdate` | every [`PATH_EVERY_STEPS`] steps and at the last: the path so far |
 //! | [`/tf`](TOPIC_TF) | `foxglove.FrameTransform` | every step: `world` → `robot` (the pose) |
 //! | [`/scan`](TOPIC_SCAN) | `foxglove.LaserScan` | every step, frame `robot` |
 //! | [`/dvnav/step`](TOPIC_STEP) | `dvnav.v1.StepRecord` | every step: action, reward, goal |
@@ -22,6 +23,7 @@
 //! - **Crash safety:** the logger closes the chunk and flushes at every episode end, so a killed
 //!   actor loses only the episode it was writing; [`read_episodes`] reads unfinished files up to
 //!   the damage and warns instead of failing.
+//! - **Rotation** by episode count and by size; episodes never straddle files.
 //! - **One context per logger** (never Foxglove's global one), so several loggers in one process
 //!   never see each other's channels.
 //!
@@ -35,6 +37,7 @@
 //! let mut log = EpisodeLogger::create("logs".as_ref(), "actor-0", LogMetadata::default(), 50)?;
 //! log.begin_episode(&EpisodeStart {
 //!     episode_id: 0, room: &room, robot_radius: 0.2, goal: [2.0, 1.0], lidar: &lidar, dt: 0.2,
+//!     mu: 1.0,
 //! })?;
 //! let scan = vec![10.0_f32; lidar.beams];
 //! log.log_step(&StepLog {
@@ -47,6 +50,7 @@
 //! # Ok(()) }
 //! ```
 
+mod check;
 mod proto_msg;
 mod reader;
 mod scene;
@@ -55,8 +59,12 @@ mod writer;
 #[cfg(test)]
 mod tests;
 
-pub use reader::{EpisodeRecord, GroupSummary, read_episodes, summarize};
-pub use writer::{EpisodeLogger, EpisodeStart, LogMetadata, StepLog};
+pub use check::{FileCheck, check_file, check_files};
+pub use reader::{
+    EpisodeDetail, EpisodeRecord, GroupSummary, episode_detail, read_episodes, read_steps,
+    summarize,
+};
+pub use writer::{EpisodeLogger, EpisodeStart, LogMetadata, PATH_EVERY_STEPS, StepLog};
 
 /// LiDAR scans (`foxglove.LaserScan`, frame `robot`).
 pub const TOPIC_SCAN: &str = "/scan";
@@ -64,6 +72,8 @@ pub const TOPIC_SCAN: &str = "/scan";
 pub const TOPIC_TF: &str = "/tf";
 /// Room, goal and footprint (`foxglove.SceneUpdate`).
 pub const TOPIC_SCENE: &str = "/scene";
+/// The path so far (`foxglove.SceneUpdate`, one line strip in frame `world`).
+pub const TOPIC_PATH: &str = "/path";
 /// Per-step action, reward and goal (`dvnav.v1.StepRecord`).
 pub const TOPIC_STEP: &str = "/dvnav/step";
 /// Per-episode summary (`dvnav.v1.EpisodeSummary`).

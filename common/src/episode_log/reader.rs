@@ -1,13 +1,13 @@
 //! Reading episode summaries back (`dvnav inspect`), from finished and from damaged files.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context as _, Result};
 use prost::Message as _;
 use serde::Serialize;
 
-use super::TOPIC_EPISODE;
+use super::{TOPIC_EPISODE, TOPIC_STEP};
 
 /// One episode summary read from a log file.
 #[derive(Clone, Debug, PartialEq)]
@@ -41,7 +41,7 @@ pub struct GroupSummary {
 
 /// Every `.mcap` file under `dir`, recursively, in path order. Symbolic links to directories
 /// are not followed (no cycles).
-fn mcap_files(dir: &Path, out: &mut Vec<PathBuf>) -> Result<()> {
+pub(crate) fn mcap_files(dir: &Path, out: &mut Vec<PathBuf>) -> Result<()> {
     let mut entries = std::fs::read_dir(dir)
         .with_context(|| format!("listing {}", dir.display()))?
         .collect::<std::io::Result<Vec<_>>>()
@@ -99,6 +99,18 @@ fn read_file(path: &Path, out: &mut Vec<EpisodeRecord>) -> Result<()> {
     Ok(())
 }
 
+/// `path` itself when it is a file, else every `.mcap` file under it, in path order.
+pub(crate) fn files_under(path: &Path) -> Result<Vec<PathBuf>> {
+    let meta = std::fs::metadata(path).with_context(|| format!("reading {}", path.display()))?;
+    if meta.is_dir() {
+        let mut files = Vec::new();
+        mcap_files(path, &mut files)?;
+        Ok(files)
+    } else {
+        Ok(vec![path.to_path_buf()])
+    }
+}
+
 /// Reads the episode summaries (`/dvnav/episode`) of one `.mcap` file, or of every `.mcap`
 /// file under a directory (recursively), sorted by (actor id, episode id).
 ///
@@ -106,14 +118,7 @@ fn read_file(path: &Path, out: &mut Vec<EpisodeRecord>) -> Result<()> {
 /// complete message before the damage is read and a warning is logged. Errors are for a path
 /// that cannot be read at all.
 pub fn read_episodes(path: &Path) -> Result<Vec<EpisodeRecord>> {
-    let meta = std::fs::metadata(path).with_context(|| format!("reading {}", path.display()))?;
-    let files = if meta.is_dir() {
-        let mut files = Vec::new();
-        mcap_files(path, &mut files)?;
-        files
-    } else {
-        vec![path.to_path_buf()]
-    };
+    let files = files_under(path)?;
     let mut out = Vec::new();
     for file in &files {
         read_file(file, &mut out)?;
@@ -165,4 +170,143 @@ pub fn summarize(records: &[EpisodeRecord]) -> Vec<GroupSummary> {
             }
         })
         .collect()
+}
+
+/// The step records (`/dvnav/step`) of the episodes `ids` in one file, in step order, read up to
+/// the first damage like [`read_episodes`]. An episode's ids are unique within its actor, and
+/// each file belongs to one actor, so (file, id) names one episode.
+pub fn read_steps(
+    file: &Path,
+    ids: &BTreeSet<u64>,
+) -> Result<BTreeMap<u64, Vec<dvnav_proto::StepRecord>>> {
+    let bytes = std::fs::read(file).with_context(|| format!("reading {}", file.display()))?;
+    let mut out: BTreeMap<u64, Vec<dvnav_proto::StepRecord>> = BTreeMap::new();
+    let stream = match mcap::MessageStream::new(&bytes) {
+        Ok(s) => s,
+        Err(e) => {
+            tracing::warn!(file = %file.display(), error = %e, "not a readable MCAP file; skipped");
+            return Ok(out);
+        }
+    };
+    for message in stream {
+        let Ok(message) = message else { break };
+        if message.channel.topic != TOPIC_STEP {
+            continue;
+        }
+        if let Ok(rec) = dvnav_proto::StepRecord::decode(message.data.as_ref())
+            && ids.contains(&rec.episode_id)
+        {
+            out.entry(rec.episode_id).or_default().push(rec);
+        }
+    }
+    for steps in out.values_mut() {
+        steps.sort_by_key(|r| r.step);
+    }
+    Ok(out)
+}
+
+/// One episode in detail: its summary plus figures computed from its step records
+/// (`dvnav inspect --episode`).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct EpisodeDetail {
+    /// Episode id (unique within its actor).
+    pub episode_id: u64,
+    /// Actor name and id.
+    pub actor: String,
+    /// Actor id given by the learner.
+    pub actor_id: u32,
+    /// Environment index within the actor.
+    pub env_index: u32,
+    /// Curriculum stage and room.
+    pub stage: u32,
+    /// Room name (`Room::builtin` name).
+    pub room: String,
+    /// The actor's base seed.
+    pub seed: u64,
+    /// Footprint description and DVST scale factor μ.
+    pub footprint: String,
+    /// DVST scale factor (1 without DVST).
+    pub mu: f64,
+    /// `success`, `collision`, `timeout` or `unspecified`.
+    pub outcome: String,
+    /// Control steps (after the reset step).
+    pub steps: u32,
+    /// Undiscounted return.
+    pub episode_return: f64,
+    /// Evaluation score S (design §4).
+    pub score: f64,
+    /// Weight version that acted last (0: PID).
+    pub policy_version: u64,
+    /// Driven by the PID warm-up controller.
+    pub warmup: bool,
+    /// Start and goal positions (m, world frame).
+    pub start: [f64; 2],
+    /// Goal position (m, world frame).
+    pub goal: [f64; 2],
+    /// Straight-line distance from start to goal (m).
+    pub start_goal_distance_m: f64,
+    /// Step records found in the file (steps + 1 for a complete episode).
+    pub logged_steps: usize,
+    /// Length of the driven path (m).
+    pub path_length_m: f64,
+    /// Goal distance at the last step and the closest approach (m).
+    pub final_goal_distance_m: f64,
+    /// Closest approach to the goal (m).
+    pub min_goal_distance_m: f64,
+    /// Mean and largest commanded linear velocity (m/s).
+    pub mean_v: f64,
+    /// Largest commanded linear velocity (m/s).
+    pub max_v: f64,
+    /// Mean |ω| (rad/s).
+    pub mean_abs_omega: f64,
+    /// Simulation time of the first and last step on the file's clock (s).
+    pub start_time_s: f64,
+    /// Simulation time of the last step (s).
+    pub end_time_s: f64,
+    /// The file it is in.
+    pub file: PathBuf,
+}
+
+/// Outcome name of a logged summary.
+pub(crate) fn outcome_name(v: i32) -> &'static str {
+    crate::core::Outcome::from_proto(v).map_or("unspecified", |o| o.as_str())
+}
+
+/// The detail of `record`, with `steps` its step records in step order.
+pub fn episode_detail(record: &EpisodeRecord, steps: &[dvnav_proto::StepRecord]) -> EpisodeDetail {
+    let s = &record.summary;
+    let path_length_m = steps.windows(2).map(|w| (w[1].x - w[0].x).hypot(w[1].y - w[0].y)).sum();
+    // Step 0 is the pose after reset, before any command.
+    let moving = steps.get(1..).unwrap_or(&[]);
+    let n = moving.len().max(1) as f64;
+    EpisodeDetail {
+        episode_id: s.episode_id,
+        actor: s.actor.clone(),
+        actor_id: s.actor_id,
+        env_index: s.env_index,
+        stage: s.stage,
+        room: s.room.clone(),
+        seed: s.seed,
+        footprint: s.footprint.clone(),
+        mu: s.mu,
+        outcome: outcome_name(s.outcome).to_string(),
+        steps: s.steps,
+        episode_return: s.episode_return,
+        score: s.score,
+        policy_version: s.policy_version,
+        warmup: s.warmup,
+        start: [s.start_x, s.start_y],
+        goal: [s.goal_x, s.goal_y],
+        start_goal_distance_m: (s.goal_x - s.start_x).hypot(s.goal_y - s.start_y),
+        logged_steps: steps.len(),
+        path_length_m,
+        final_goal_distance_m: steps.last().map_or(f64::NAN, |r| r.goal_distance),
+        min_goal_distance_m: steps.iter().map(|r| r.goal_distance).fold(f64::NAN, f64::min),
+        mean_v: moving.iter().map(|r| r.v).sum::<f64>() / n,
+        max_v: moving.iter().map(|r| r.v).fold(0.0, f64::max),
+        mean_abs_omega: moving.iter().map(|r| r.omega.abs()).sum::<f64>() / n,
+        start_time_s: s.start_time_ns as f64 * 1e-9,
+        end_time_s: s.end_time_ns as f64 * 1e-9,
+        file: record.file.clone(),
+    }
 }

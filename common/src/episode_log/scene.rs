@@ -6,7 +6,9 @@
 //!
 //! One full scene goes out at the start of each episode and deletes everything before it. Because
 //! it is complete, Foxglove's seek (which replays the latest message of each topic) always shows
-//! the right room.
+//! the right room. The path so far is a separate topic (`/path`, one entity `path` that each
+//! update replaces) for the same reason: path updates on `/scene` would become "the latest
+//! message" and hide the room after a seek.
 
 use foxglove::messages::{
     Color, CubePrimitive, CylinderPrimitive, LinePrimitive, Point3, Pose, Quaternion, SceneEntity,
@@ -36,6 +38,12 @@ const OBSTACLE_COLOR: Color = Color { r: 0.75, g: 0.45, b: 0.2, a: 0.85 };
 const GOAL_COLOR: Color = Color { r: 0.1, g: 0.8, b: 0.25, a: 0.9 };
 const ROBOT_COLOR: Color = Color { r: 0.2, g: 0.45, b: 0.95, a: 0.6 };
 const HEADING_COLOR: Color = Color { r: 1.0, g: 1.0, b: 1.0, a: 1.0 };
+const SCALED_COLOR: Color = Color { r: 0.95, g: 0.3, b: 0.85, a: 0.35 };
+const PATH_COLOR: Color = Color { r: 0.2, g: 0.6, b: 1.0, a: 1.0 };
+/// Drawn height of the path above the floor (m), so it shows on top of it.
+const PATH_Z: f64 = 0.02;
+/// Line width of the path (m).
+const PATH_WIDTH: f64 = 0.03;
 
 /// Rotation by `yaw` (rad) about +z.
 pub(crate) fn yaw_quaternion(yaw: f64) -> Quaternion {
@@ -159,6 +167,43 @@ fn robot(radius: f64, timestamp: Timestamp) -> SceneEntity {
     }
 }
 
+/// The dimension-scaled robot (DVST): the meta robot's disc scaled by μ about the axle centre,
+/// translucent and a little lower than the footprint, locked to frame `robot`.
+fn scaled_footprint(radius: f64, timestamp: Timestamp) -> SceneEntity {
+    let h = 0.5 * ROBOT_HEIGHT;
+    SceneEntity {
+        frame_locked: true,
+        cylinders: vec![CylinderPrimitive {
+            pose: Some(pose(0.0, 0.0, 0.5 * h, 0.0)),
+            size: size(2.0 * radius, 2.0 * radius, h),
+            bottom_scale: 1.0,
+            top_scale: 1.0,
+            color: Some(SCALED_COLOR),
+        }],
+        ..entity("scaled_footprint", ROBOT_FRAME, timestamp)
+    }
+}
+
+/// `/path`: the robot's positions so far as one line strip in frame `world`; replaces the
+/// previous `path` entity.
+pub(crate) fn path_update(points: &[Point], timestamp: Timestamp) -> SceneUpdate {
+    SceneUpdate {
+        deletions: vec![],
+        entities: vec![SceneEntity {
+            lines: vec![LinePrimitive {
+                r#type: line_primitive::Type::LineStrip as i32,
+                pose: Some(pose(0.0, 0.0, 0.0, 0.0)),
+                thickness: PATH_WIDTH,
+                scale_invariant: false,
+                points: points.iter().map(|&p| point(p, PATH_Z)).collect(),
+                color: Some(PATH_COLOR),
+                ..Default::default()
+            }],
+            ..entity("path", WORLD_FRAME, timestamp)
+        }],
+    }
+}
+
 fn goal(goal: Point, timestamp: Timestamp) -> SceneEntity {
     let d = GOAL_MARKER_DIAMETER;
     SceneEntity {
@@ -172,19 +217,23 @@ fn goal(goal: Point, timestamp: Timestamp) -> SceneEntity {
 }
 
 /// The full scene of one episode: deletes every earlier entity, then adds walls, obstacles, goal
-/// and robot.
+/// and robot (and the scaled robot when μ ≠ 1).
 pub(crate) fn episode_scene(ep: &EpisodeStart<'_>, timestamp: Timestamp) -> SceneUpdate {
+    let mut entities = vec![
+        walls(ep.room.side, ep.room.wall_thickness, timestamp),
+        obstacles(&ep.room.obstacles, timestamp),
+        goal(ep.goal, timestamp),
+        robot(ep.robot_radius, timestamp),
+    ];
+    if ep.mu != 1.0 {
+        entities.push(scaled_footprint(ep.mu * ep.robot_radius, timestamp));
+    }
     SceneUpdate {
         deletions: vec![SceneEntityDeletion {
             timestamp: Some(timestamp),
             r#type: scene_entity_deletion::Type::All as i32,
             id: String::new(),
         }],
-        entities: vec![
-            walls(ep.room.side, ep.room.wall_thickness, timestamp),
-            obstacles(&ep.room.obstacles, timestamp),
-            goal(ep.goal, timestamp),
-            robot(ep.robot_radius, timestamp),
-        ],
+        entities,
     }
 }

@@ -96,6 +96,17 @@ fn goal_of(ep: &Episode) -> [f64; 2] {
 
 /// Logs `ep` completely, recording the file size after it (it is flushed at the end).
 fn log_episode(log: &mut EpisodeLogger, ep: &Episode, room: &RoomSpec, lidar: &LidarConfig) {
+    log_episode_mu(log, ep, room, lidar, 1.0);
+}
+
+/// [`log_episode`] with DVST scale factor `mu`.
+fn log_episode_mu(
+    log: &mut EpisodeLogger,
+    ep: &Episode,
+    room: &RoomSpec,
+    lidar: &LidarConfig,
+    mu: f64,
+) {
     log.begin_episode(&EpisodeStart {
         episode_id: ep.id,
         room,
@@ -103,6 +114,7 @@ fn log_episode(log: &mut EpisodeLogger, ep: &Episode, room: &RoomSpec, lidar: &L
         goal: goal_of(ep),
         lidar,
         dt: DT,
+        mu,
     })
     .unwrap();
     for step in 0..=ep.steps {
@@ -223,6 +235,7 @@ fn rotated_files_decode_against_their_schemas() {
         let mut counts: BTreeMap<String, usize> = BTreeMap::new();
         let mut steps_seen = Vec::new();
         let mut summaries = Vec::new();
+        let mut path_lengths = Vec::new();
         let mut current: Option<&Episode> = None;
         let mut ep_iter = eps.iter();
         for m in messages(path) {
@@ -236,6 +249,7 @@ fn rotated_files_decode_against_their_schemas() {
                     let scene = SceneUpdate::decode(m.data.as_ref()).unwrap();
                     assert_eq!(scene.deletions.len(), 1, "each scene replaces the last");
                     let ids: BTreeSet<_> = scene.entities.iter().map(|e| e.id.as_str()).collect();
+                    // No scaled footprint without DVST (μ = 1).
                     assert_eq!(ids, BTreeSet::from(["walls", "obstacles", "goal", "robot"]));
                     let get = |id: &str| scene.entities.iter().find(|e| e.id == id).unwrap();
                     assert_eq!(get("walls").cubes.len(), 4);
@@ -297,6 +311,26 @@ fn rotated_files_decode_against_their_schemas() {
                     assert_dvnav_schema(&m, "dvnav.v1.EpisodeSummary");
                     summaries.push(dvnav_proto::EpisodeSummary::decode(m.data.as_ref()).unwrap());
                 }
+                TOPIC_PATH => {
+                    assert_foxglove_schema(&m, "foxglove.SceneUpdate");
+                    let update = SceneUpdate::decode(m.data.as_ref()).unwrap();
+                    assert!(update.deletions.is_empty(), "a path update never deletes the room");
+                    let [path] = &update.entities[..] else { panic!("one path entity") };
+                    assert_eq!((path.id.as_str(), path.frame_id.as_str()), ("path", "world"));
+                    let ep = current.unwrap();
+                    // The path so far: the poses of steps 0..=k for the step k at this time.
+                    let points = &path.lines[0].points;
+                    let k = points.len() as u32 - 1;
+                    assert!(
+                        k.is_multiple_of(PATH_EVERY_STEPS) || k == ep.steps,
+                        "path at step {k}"
+                    );
+                    for (i, p) in points.iter().enumerate() {
+                        let pose = pose_at(ep, i as u32);
+                        assert_eq!([p.x, p.y], [pose[0], pose[1]]);
+                    }
+                    path_lengths.push((ep.id, k));
+                }
                 other => panic!("unexpected topic {other}"),
             }
         }
@@ -305,8 +339,21 @@ fn rotated_files_decode_against_their_schemas() {
             eps.iter().flat_map(|e| (0..=e.steps).map(move |k| (e.id, k))).collect();
         assert_eq!(steps_seen, expected_steps);
         let n_steps = expected_steps.len();
+        // Every PATH_EVERY_STEPS steps from step 0, and the last step.
+        let expected_paths: Vec<(u64, u32)> = eps
+            .iter()
+            .flat_map(|e| {
+                let mut ks: Vec<u32> = (0..=e.steps).step_by(PATH_EVERY_STEPS as usize).collect();
+                if !e.steps.is_multiple_of(PATH_EVERY_STEPS) {
+                    ks.push(e.steps);
+                }
+                ks.into_iter().map(move |k| (e.id, k))
+            })
+            .collect();
+        assert_eq!(path_lengths, expected_paths);
         let expected_counts: BTreeMap<String, usize> = [
             (TOPIC_SCENE, eps.len()),
+            (TOPIC_PATH, expected_paths.len()),
             (TOPIC_TF, n_steps),
             (TOPIC_SCAN, n_steps),
             (TOPIC_STEP, n_steps),
@@ -540,6 +587,7 @@ fn a_file_still_being_written_reads_like_a_killed_actor_left_it() {
         goal: goal_of(&ep),
         lidar: &lidar,
         dt: DT,
+        mu: 1.0,
     })
     .unwrap();
     for step in 0..200 {
@@ -618,6 +666,7 @@ fn misuse_is_an_error() {
         goal: [0.0; 2],
         lidar: &lidar,
         dt: 0.0,
+        mu: 1.0,
     };
     assert!(log.begin_episode(&start).is_err(), "dt = 0");
     log.begin_episode(&EpisodeStart { dt: DT, ..start }).unwrap();
@@ -632,4 +681,193 @@ fn misuse_is_an_error() {
 fn logger_is_send() {
     fn assert_send<T: Send>() {}
     assert_send::<EpisodeLogger>();
+}
+
+#[test]
+fn scaled_footprint_is_drawn_only_when_mu_is_not_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let (room, lidar) = (room(), LidarConfig::default());
+    let mut log = EpisodeLogger::create(dir.path(), "mu", meta(), 10).unwrap();
+    let ep = |id| Episode { id, steps: 2, outcome: dvnav_proto::Outcome::Success, stage: 0 };
+    log_episode_mu(&mut log, &ep(0), &room, &lidar, 1.0);
+    log_episode_mu(&mut log, &ep(1), &room, &lidar, 1.5);
+    log.close().unwrap();
+    let msgs = messages(&mcap_files(dir.path())[0]);
+    let scenes: Vec<SceneUpdate> = msgs
+        .iter()
+        .filter(|m| m.channel.topic == TOPIC_SCENE)
+        .map(|m| SceneUpdate::decode(m.data.as_ref()).unwrap())
+        .collect();
+    let scaled = |s: &SceneUpdate| s.entities.iter().find(|e| e.id == "scaled_footprint").cloned();
+    assert!(scaled(&scenes[0]).is_none());
+    let e = scaled(&scenes[1]).expect("μ = 1.5 draws the scaled robot");
+    assert_eq!(e.frame_id, "robot");
+    assert!(e.frame_locked);
+    assert_close(e.cylinders[0].size.unwrap().x, 2.0 * 1.5 * RADIUS);
+    // The robot's own footprint keeps its size.
+    let robot = scenes[1].entities.iter().find(|e| e.id == "robot").unwrap();
+    assert_close(robot.cylinders[0].size.unwrap().x, 2.0 * RADIUS);
+    let mus: Vec<f64> = msgs
+        .iter()
+        .filter(|m| m.channel.topic == TOPIC_EPISODE)
+        .map(|m| dvnav_proto::EpisodeSummary::decode(m.data.as_ref()).unwrap().mu)
+        .collect();
+    assert_eq!(mus, [1.0, 1.5]);
+}
+
+#[test]
+fn files_rotate_by_size_as_well_as_by_episode_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let (room, lidar) = (room(), LidarConfig::default());
+    let ep = |id| Episode { id, steps: 10, outcome: dvnav_proto::Outcome::Timeout, stage: 0 };
+    // Measure the size of a file after one such episode first.
+    let mut probe = EpisodeLogger::create(&dir.path().join("probe"), "p", meta(), 100).unwrap();
+    log_episode(&mut probe, &ep(0), &room, &lidar);
+    let one_episode = std::fs::metadata(probe.current_file().unwrap()).unwrap().len();
+    drop(probe);
+    // A limit of 1.5 episodes: the file is finished after the 2nd episode, never mid-episode.
+    let sized = dir.path().join("sized");
+    let mut log = EpisodeLogger::create(&sized, "s", meta(), 100)
+        .unwrap()
+        .with_max_file_bytes(Some(one_episode * 3 / 2));
+    for id in 0..5 {
+        log_episode(&mut log, &ep(id), &room, &lidar);
+    }
+    log.close().unwrap();
+    let files = mcap_files(&sized);
+    assert_eq!(files.len(), 3, "{files:?}");
+    let per_file: Vec<Vec<u64>> = files
+        .iter()
+        .map(|f| read_episodes(f).unwrap().iter().map(|r| r.summary.episode_id).collect())
+        .collect();
+    assert_eq!(per_file, [vec![0, 1], vec![2, 3], vec![4]]);
+    for f in &files {
+        let check = check_file(f).unwrap();
+        assert!(check.finished && check.is_ok(), "{check:?}");
+    }
+    // No limit (None or 0): by count only.
+    let unlimited = dir.path().join("unlimited");
+    let mut log =
+        EpisodeLogger::create(&unlimited, "u", meta(), 100).unwrap().with_max_file_bytes(Some(0));
+    for id in 0..3 {
+        log_episode(&mut log, &ep(id), &room, &lidar);
+    }
+    log.close().unwrap();
+    assert_eq!(mcap_files(&unlimited).len(), 1);
+}
+
+#[test]
+fn check_file_decodes_everything_and_tells_finished_from_cut_and_damaged() {
+    let dir = tempfile::tempdir().unwrap();
+    let (path, ends) = one_file(dir.path(), 3);
+    let check = check_file(&path).unwrap();
+    assert!(check.is_ok(), "{check:?}");
+    assert!(check.finished && check.truncated.is_none());
+    assert_eq!(check.complete_episodes, 3);
+    assert_eq!(check.steps, 3 * 21);
+    assert_eq!(check.metadata.get("run_id").map(String::as_str), Some("run-7"));
+    let n = |t: &str| check.topics.get(t).copied().unwrap_or(0);
+    assert_eq!((n(TOPIC_SCAN), n(TOPIC_TF), n(TOPIC_STEP)), (63, 63, 63));
+    assert_eq!((n(TOPIC_SCENE), n(TOPIC_EPISODE)), (3, 3));
+    // 20 steps: paths at 0, 5, 10, 15, 20.
+    assert_eq!(n(TOPIC_PATH), 3 * 5);
+    assert_eq!(check.messages, 63 * 3 + 3 + 3 + 15);
+
+    // Cut after the second episode's chunk plus a little: unfinished, two complete episodes,
+    // no errors.
+    let bytes = std::fs::read(&path).unwrap();
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..ends[1] as usize + 100]).unwrap();
+    let c = check_file(&cut).unwrap();
+    assert!(c.is_ok() && !c.finished && c.truncated.is_some(), "{c:?}");
+    assert_eq!(c.complete_episodes, 2);
+
+    // A flipped byte inside a finished file's first chunk is an error, not a quiet tail.
+    let mut damaged = bytes.clone();
+    let at = (ends[0] / 2) as usize;
+    damaged[at] ^= 0xff;
+    let bad = dir.path().join("bad.mcap");
+    std::fs::write(&bad, &damaged).unwrap();
+    let c = check_file(&bad).unwrap();
+    assert!(!c.is_ok(), "{c:?}");
+
+    // Not MCAP at all.
+    let junk = dir.path().join("junk.mcap");
+    std::fs::write(&junk, b"hello").unwrap();
+    assert!(!check_file(&junk).unwrap().is_ok());
+}
+
+#[test]
+fn episode_detail_from_steps() {
+    let dir = tempfile::tempdir().unwrap();
+    let (room, lidar) = (room(), LidarConfig::default());
+    let mut log = EpisodeLogger::create(dir.path(), "d", meta(), 10).unwrap();
+    let episodes = three_episodes();
+    for ep in &episodes {
+        log_episode(&mut log, ep, &room, &lidar);
+    }
+    log.close().unwrap();
+    let records = read_episodes(dir.path()).unwrap();
+    let rec = &records[1];
+    let ids = BTreeSet::from([rec.summary.episode_id]);
+    let steps = read_steps(&rec.file, &ids).unwrap();
+    assert_eq!(steps.keys().copied().collect::<Vec<_>>(), [11]);
+    let d = episode_detail(rec, &steps[&11]);
+    assert_eq!((d.episode_id, d.outcome.as_str(), d.steps), (11, "collision", 3));
+    assert_eq!(d.logged_steps, 4);
+    // pose_at moves 0.1 m in x per step at constant y.
+    assert_close(d.path_length_m, 0.3);
+    assert_close(d.mean_v, 0.5);
+    assert_close(d.final_goal_distance_m, 4.0 - 0.3);
+    assert_close(d.min_goal_distance_m, 4.0 - 0.3);
+    assert_close(d.end_time_s - d.start_time_s, 3.0 * DT);
+    assert_eq!(d.actor, "actor-3");
+}
+
+/// The Foxglove layout shipped in `deploy/foxglove/` names only topics the logger writes and
+/// only fields `dvnav.v1.StepRecord` has, so a renamed field or topic fails here, not in
+/// Foxglove.
+#[test]
+fn foxglove_layout_refers_to_logged_topics_and_fields() {
+    let layout: serde_json::Value =
+        serde_json::from_str(include_str!("../../../deploy/foxglove/dvnav-episode-layout.json"))
+            .unwrap();
+    let topics = [TOPIC_SCAN, TOPIC_TF, TOPIC_SCENE, TOPIC_PATH, TOPIC_STEP, TOPIC_EPISODE];
+    let fds = prost_types::FileDescriptorSet::decode(dvnav_proto::FILE_DESCRIPTOR_SET).unwrap();
+    let step_fields: BTreeSet<String> = fds
+        .file
+        .iter()
+        .flat_map(|f| &f.message_type)
+        .filter(|m| m.name() == "StepRecord")
+        .flat_map(|m| m.field.iter().map(|f| f.name().to_string()))
+        .collect();
+    assert!(step_fields.contains("reward"));
+    let panels = layout["configById"].as_object().unwrap();
+    let mut plotted = 0;
+    for (id, cfg) in panels {
+        if let Some(t) = cfg["topics"].as_object() {
+            for topic in t.keys() {
+                assert!(topics.contains(&topic.as_str()), "{id}: unknown topic {topic}");
+            }
+            for must in [TOPIC_SCENE, TOPIC_PATH, TOPIC_SCAN] {
+                assert_eq!(t[must]["visible"], true, "{id}: {must} shown");
+            }
+        }
+        for path in cfg["paths"].as_array().into_iter().flatten() {
+            let value = path["value"].as_str().unwrap();
+            let (topic, field) = value.split_once('.').unwrap();
+            assert_eq!(topic, TOPIC_STEP, "{id}: {value}");
+            assert!(step_fields.contains(field), "{id}: {value}: no field {field}");
+            plotted += 1;
+        }
+        if let Some(t) = cfg["topicPath"].as_str() {
+            assert!(topics.contains(&t), "{id}: {t}");
+        }
+    }
+    assert!(plotted >= 3, "reward and velocities are plotted");
+    // Every panel the layout tree names is configured.
+    let tree = layout["layout"].to_string();
+    for id in panels.keys() {
+        assert!(tree.contains(&format!("\"{id}\"")), "{id} is not in the layout tree");
+    }
 }

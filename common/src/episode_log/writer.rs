@@ -11,8 +11,10 @@ use foxglove::messages::{FrameTransform, LaserScan, SceneUpdate, Timestamp, Vect
 use foxglove::{Channel, Context, McapCompression, McapWriteOptions, McapWriterHandle};
 
 use super::proto_msg::Dvnav;
-use super::scene::{ROBOT_FRAME, WORLD_FRAME, episode_scene, yaw_quaternion};
-use super::{METADATA_NAME, TOPIC_EPISODE, TOPIC_SCAN, TOPIC_SCENE, TOPIC_STEP, TOPIC_TF};
+use super::scene::{ROBOT_FRAME, WORLD_FRAME, episode_scene, path_update, yaw_quaternion};
+use super::{
+    METADATA_NAME, TOPIC_EPISODE, TOPIC_PATH, TOPIC_SCAN, TOPIC_SCENE, TOPIC_STEP, TOPIC_TF,
+};
 use crate::config::LidarConfig;
 use crate::sim::RoomSpec;
 
@@ -20,6 +22,12 @@ use crate::sim::RoomSpec;
 /// so a 400-step episode (~1.9 MB) fits one chunk. The logger also closes the chunk at
 /// every episode end, so chunk size only bounds how much of the *open* episode a crash loses.
 const CHUNK_SIZE: u64 = 2 * 1024 * 1024;
+
+/// The path so far goes out on `/path` every this many steps (and at the episode's last step).
+/// Each update carries the whole path, so Foxglove's seek (which replays the latest message of
+/// a topic) always shows it complete; every step would cost O(steps²) points per episode, every
+/// 5th step keeps `/path` at a few percent of a file (see the README's disk costs).
+pub const PATH_EVERY_STEPS: u32 = 5;
 
 /// Who wrote a log file; stored as MCAP metadata record `dvnav` at the start of every file, so
 /// any file can be traced back to its run, actor and configuration on its own.
@@ -67,6 +75,10 @@ pub struct EpisodeStart<'a> {
     pub lidar: &'a LidarConfig,
     /// Control period (s): step `k` is logged at `episode start + k·dt` on the file's clock.
     pub dt: f64,
+    /// DVST scale factor μ (design §5); 1 without DVST. When μ ≠ 1 the scene also shows the
+    /// dimension-scaled robot: a disc of radius μ·`robot_radius` (the meta robot scaled about
+    /// the axle centre). The logger copies μ into the episode summary.
+    pub mu: f64,
 }
 
 /// One control step. Step 0 is the pose after reset (reward 0); each later step is the state
@@ -98,6 +110,7 @@ struct Channels {
     scan: Channel<LaserScan>,
     tf: Channel<FrameTransform>,
     scene: Channel<SceneUpdate>,
+    path: Channel<SceneUpdate>,
     step: Channel<Dvnav<dvnav_proto::StepRecord>>,
     episode: Channel<Dvnav<dvnav_proto::EpisodeSummary>>,
 }
@@ -108,6 +121,7 @@ impl Channels {
             scan: ctx.channel_builder(TOPIC_SCAN).build(),
             tf: ctx.channel_builder(TOPIC_TF).build(),
             scene: ctx.channel_builder(TOPIC_SCENE).build(),
+            path: ctx.channel_builder(TOPIC_PATH).build(),
             step: ctx.channel_builder(TOPIC_STEP).build(),
             episode: ctx.channel_builder(TOPIC_EPISODE).build(),
         }
@@ -136,6 +150,11 @@ struct OpenEpisode {
     beams: usize,
     start_angle: f64,
     end_angle: f64,
+    mu: f64,
+    /// Robot positions so far (world frame), for `/path`.
+    path: Vec<[f64; 2]>,
+    /// Whether `/path` already has the latest step.
+    path_published: bool,
 }
 
 /// Writes one actor's logged episodes into rotated MCAP files `DIR/{prefix}-{index:05}.mcap`.
@@ -154,8 +173,12 @@ struct OpenEpisode {
 /// closes the current chunk and flushes it to the operating system
 /// ([`McapWriterHandle::flush`]), so a process killed at any point (SIGKILL) leaves every
 /// finished episode in complete chunks on disk and loses only the open episode; the reader
-/// ([`super::read_episodes`]) reads such a file up to the damage. After `episodes_per_file`
-/// episodes the file is finished (summary, indexes, footer) and synced to disk.
+/// ([`super::read_episodes`]) reads such a file up to the damage.
+///
+/// **Rotation.** After `episodes_per_file` episodes, or at the first episode end at which the
+/// file has reached [`with_max_file_bytes`](Self::with_max_file_bytes), the file is finished
+/// (summary, indexes, footer) and synced to disk. Episodes never straddle files, so a file can
+/// pass the size limit by at most one episode (~0.2–0.5 MB for 400 steps).
 ///
 /// **Closing.** Call [`close`](Self::close): it reports errors. Dropping the logger also
 /// finishes the open file, but can only log its errors.
@@ -167,6 +190,8 @@ pub struct EpisodeLogger {
     prefix: String,
     meta: LogMetadata,
     episodes_per_file: u64,
+    /// Finish a file at the first episode end at which it is at least this large (bytes).
+    max_file_bytes: Option<u64>,
     /// Kept alive for the channels and the writer; never the global context.
     ctx: Arc<Context>,
     channels: Channels,
@@ -235,6 +260,7 @@ impl EpisodeLogger {
             prefix: prefix.to_string(),
             meta,
             episodes_per_file,
+            max_file_bytes: None,
             ctx,
             channels,
             next_index,
@@ -242,6 +268,13 @@ impl EpisodeLogger {
             episode: None,
             scan_msg: LaserScan { frame_id: ROBOT_FRAME.to_string(), ..Default::default() },
         })
+    }
+
+    /// Also rotates files by size: a file is finished at the first episode end at which it
+    /// holds at least `bytes` bytes (`None`: by episode count only).
+    pub fn with_max_file_bytes(mut self, bytes: Option<u64>) -> Self {
+        self.max_file_bytes = bytes.filter(|&b| b > 0);
+        self
     }
 
     /// Path of the file being written, if one is open.
@@ -309,6 +342,12 @@ impl EpisodeLogger {
             ep.dt
         );
         ensure!(ep.lidar.beams > 0, "episode {}: LiDAR has no beams", ep.episode_id);
+        ensure!(
+            ep.mu.is_finite() && ep.mu > 0.0,
+            "episode {}: scale factor mu = {} must be positive",
+            ep.episode_id,
+            ep.mu
+        );
         if let Some(open) = self.episode.take() {
             tracing::warn!(
                 abandoned = open.id,
@@ -336,6 +375,9 @@ impl EpisodeLogger {
             beams: ep.lidar.beams,
             start_angle: -0.5 * fov + fov * 0.5 / n,
             end_angle: -0.5 * fov + fov * (n - 0.5) / n,
+            mu: ep.mu,
+            path: Vec::with_capacity(512),
+            path_published: false,
         });
         self.channels.scene.log_with_time(&episode_scene(ep, timestamp(base_ns)), base_ns);
         Ok(())
@@ -361,6 +403,11 @@ impl EpisodeLogger {
         ep.last_ns = Some(t);
         let stamp = timestamp(t);
         let [x, y, yaw] = s.pose;
+        ep.path.push([x, y]);
+        ep.path_published = s.step.is_multiple_of(PATH_EVERY_STEPS);
+        if ep.path_published {
+            self.channels.path.log_with_time(&path_update(&ep.path, stamp), t);
+        }
 
         self.channels.tf.log_with_time(
             &FrameTransform {
@@ -413,7 +460,12 @@ impl EpisodeLogger {
             bail!("episode log: episode {} has no open file", ep.id);
         };
         let end_ns = ep.last_ns.unwrap_or(ep.base_ns);
+        if !ep.path_published && !ep.path.is_empty() {
+            // The complete path at the last step.
+            self.channels.path.log_with_time(&path_update(&ep.path, timestamp(end_ns)), end_ns);
+        }
         summary.episode_id = ep.id;
+        summary.mu = ep.mu;
         summary.actor = self.meta.actor.clone();
         summary.actor_id = self.meta.actor_id;
         summary.start_time_ns = ep.base_ns;
@@ -424,11 +476,20 @@ impl EpisodeLogger {
         file.next_base_ns = end_ns + ep.dt_ns;
         if file.episodes >= self.episodes_per_file {
             let file = self.file.take().expect("file is open");
-            Self::finish_file(file)
-        } else {
-            // Close the chunk and hand it to the OS: a crash from here on keeps this episode.
-            file.handle.flush().with_context(|| format!("flushing {}", file.path.display()))
+            return Self::finish_file(file);
         }
+        // Close the chunk and hand it to the OS: a crash from here on keeps this episode.
+        file.handle.flush().with_context(|| format!("flushing {}", file.path.display()))?;
+        if let Some(limit) = self.max_file_bytes {
+            let len = std::fs::metadata(&file.path)
+                .with_context(|| format!("reading the size of {}", file.path.display()))?
+                .len();
+            if len >= limit {
+                let file = self.file.take().expect("file is open");
+                return Self::finish_file(file);
+            }
+        }
+        Ok(())
     }
 
     /// Finishes the open file, if any, and reports any error writing it. An episode still open

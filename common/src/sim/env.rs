@@ -604,5 +604,12 @@ mod tests {
             s / n as f64 * 1e6,
             s / n as f64 * 1e9 / 540.0
         );
+        let m = n / 10;
+        let t = std::time::Instant::now();
+        for _ in 0..m {
+            lidar.scan_reference(&room, pose, None::<&mut Pcg64>, &mut scan);
+        }
+        let s = t.elapsed().as_secs_f64();
+        println!("rapier reference scan: {:.1} µs", s / m as f64 * 1e6);
     }
 }

@@ -4,7 +4,9 @@
 //!   layout [`RoomSpec::training`].
 //! - [`Room`]: one room's static geometry behind rapier2d's query pipeline (ray casts, overlap
 //!   tests); built once and shared as `Arc<Room>`.
-//! - [`Lidar`]: the planar range finder at the robot's axle centre.
+//! - [`Lidar`]: the planar range finder at the robot's axle centre. Scans are cast shape by
+//!   shape against the room's flat geometry (`caster.rs`), exact in `f64`; rapier's per-beam
+//!   ray casts remain as the reference ([`Lidar::scan_reference`]).
 //! - [`NavEnv`]: one episode at a time for the circular meta robot with unicycle kinematics,
 //!   the paper's reward, and the flat observation of [`crate::obs`].
 //! - [`VecEnv`]: many [`NavEnv`]s stepped in parallel with rayon.
@@ -26,6 +28,7 @@
 //! assert!(out.reward.is_finite());
 //! ```
 
+mod caster;
 mod env;
 mod lidar;
 mod room;

@@ -3,8 +3,10 @@
 //! A room never moves, so it is built once and shared read-only (`Arc<Room>`) by every
 //! environment that runs in it. rapier works in `f32`; the room's public methods take and return
 //! `f64` like the rest of the simulator and convert at the boundary, so rapier's types never
-//! leave `sim`.
+//! leave `sim`. LiDAR scans do not go through rapier: the room also keeps its shapes as flat
+//! arrays (`caster.rs`) for a much faster exact scan, tested against rapier's ray casts.
 
+use super::caster::Caster;
 use super::spec::{ObstacleSpec, RoomSpec};
 use anyhow::Context;
 use rapier2d::parry::shape::Ball;
@@ -24,6 +26,8 @@ pub struct Room {
     /// rapier's world, holding the colliders (standalone, no rigid bodies) and the broad phase
     /// the query pipeline reads. Nothing is ever stepped.
     world: PhysicsWorld,
+    /// The same shapes as flat arrays for fast exact LiDAR scans.
+    caster: Caster,
 }
 
 impl std::fmt::Debug for Room {
@@ -75,7 +79,8 @@ impl Room {
         }
         // Builds the broad-phase BVH over the new colliders; no body moves, nothing else changes.
         world.detect_collisions(&(), &());
-        Ok(Room { spec, world })
+        let caster = Caster::new(&spec);
+        Ok(Room { spec, world, caster })
     }
 
     /// A built-in room: `env0`..`env3` are the training layout at side 8, 7, 6, 5 m.
@@ -109,6 +114,11 @@ impl Room {
     /// rapier's scene queries over this room.
     pub(super) fn query(&self) -> QueryPipeline<'_> {
         self.world.query_pipeline()
+    }
+
+    /// The room's shapes for fast exact scans.
+    pub(super) fn caster(&self) -> &Caster {
+        &self.caster
     }
 
     /// Distance (m) along the unit direction `dir` from `origin` to the first wall or obstacle,

@@ -12,13 +12,12 @@
 //! `d` is *termination* (success or collision) only: a timeout is a truncation and still
 //! bootstraps.
 
-use super::networks::{Owned, SacNetworks};
+use super::networks::{GaussianPolicy, Owned, QFunction, SacNetworks};
 use super::optim::Adam;
 use crate::replay::Batch;
 use candle_core::{Device, Result, Tensor, Var};
 use dvnav_common::config::SacConfig;
-use dvnav_common::nets::Critic;
-use dvnav_common::obs::ACTION_DIM;
+use dvnav_common::nets::{Actor, Critic};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 
@@ -76,7 +75,7 @@ pub fn temperature_loss(
 }
 
 /// Polyak averaging of a target critic towards its online critic: φ̂ ← τ φ + (1 − τ) φ̂.
-pub fn soft_update(target: &Owned<Critic>, online: &Owned<Critic>, tau: f64) -> Result<()> {
+pub fn soft_update<Q>(target: &Owned<Q>, online: &Owned<Q>, tau: f64) -> Result<()> {
     for ((tn, t), (on, o)) in target.named_vars().iter().zip(online.named_vars().iter()) {
         debug_assert_eq!(tn, on);
         t.set(&((t.as_tensor() * (1.0 - tau))? + (o.as_tensor() * tau)?)?)?;
@@ -99,10 +98,23 @@ pub struct UpdateMetrics {
     pub entropy: f64,
 }
 
-/// The SAC learner: networks, optimizers, and the update counter.
-pub struct SacLearner {
+/// The standard-normal noise ε one update consumes: `next` for ã′ ~ π(·|s′) in the target,
+/// `current` for ã ~ π(·|s) in the policy and temperature losses; each `(batch, action_dim)`.
+/// [`SacLearner::update`] draws it from the learner's seeded generator; tests pass their own
+/// to [`SacLearner::update_with_noise`].
+#[derive(Clone, Debug)]
+pub struct UpdateNoise {
+    /// ε for the next observations, row-major `(batch, action_dim)`.
+    pub next: Vec<f32>,
+    /// ε for the current observations, row-major `(batch, action_dim)`.
+    pub current: Vec<f32>,
+}
+
+/// The SAC learner: networks, optimizers, and the update counter. Generic over the policy and
+/// critic networks; the default is the navigation CNN pair.
+pub struct SacLearner<P = Actor, Q = Critic> {
     /// The networks.
-    pub nets: SacNetworks,
+    pub nets: SacNetworks<P, Q>,
     cfg: SacConfig,
     critic_opt: Adam,
     actor_opt: Adam,
@@ -110,6 +122,7 @@ pub struct SacLearner {
     /// Policy weight matrices (not biases) for the L2 term.
     policy_weights: Vec<Var>,
     target_entropy: f64,
+    action_dim: usize,
     updates: u64,
     last: UpdateMetrics,
     device: Device,
@@ -122,9 +135,9 @@ fn tensor(data: &[f32], shape: impl Into<candle_core::Shape>, dev: &Device) -> R
     Tensor::from_slice(data, shape, dev)
 }
 
-impl SacLearner {
+impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
     /// A learner over fresh or loaded networks.
-    pub fn new(nets: SacNetworks, cfg: SacConfig, device: Device, seed: u64) -> Result<Self> {
+    pub fn new(nets: SacNetworks<P, Q>, cfg: SacConfig, device: Device, seed: u64) -> Result<Self> {
         let prefixed = |p: &str, vars: Vec<(String, Var)>| {
             vars.into_iter().map(|(n, v)| (format!("{p}.{n}"), v)).collect::<Vec<_>>()
         };
@@ -140,7 +153,8 @@ impl SacLearner {
         let actor_opt = Adam::new(actor_vars, cfg.actor_lr)?;
         let alpha_opt =
             Adam::new(vec![("log_alpha".into(), nets.log_alpha.clone())], cfg.alpha_lr)?;
-        let target_entropy = cfg.target_entropy.unwrap_or(-(ACTION_DIM as f64));
+        let action_dim = nets.actor.net.action_dim();
+        let target_entropy = cfg.target_entropy.unwrap_or(-(action_dim as f64));
         Ok(Self {
             nets,
             cfg,
@@ -149,6 +163,7 @@ impl SacLearner {
             alpha_opt,
             policy_weights,
             target_entropy,
+            action_dim,
             updates: 0,
             last: UpdateMetrics::default(),
             device,
@@ -166,35 +181,49 @@ impl SacLearner {
         &self.device
     }
 
-    /// One SAC update on a minibatch: both critics every call; the policy and α every
-    /// `policy_delay`-th call; the targets by Polyak averaging every call.
+    /// One SAC update on a minibatch with noise from the learner's seeded generator: both
+    /// critics every call; the policy and α every `policy_delay`-th call; the targets by
+    /// Polyak averaging every call.
     pub fn update(&mut self, batch: &Batch) -> Result<UpdateMetrics> {
+        let noise = UpdateNoise {
+            next: self.standard_normal(batch.size),
+            current: self.standard_normal(batch.size),
+        };
+        self.update_with_noise(batch, &noise)
+    }
+
+    /// [`Self::update`] with the given policy noise.
+    pub fn update_with_noise(
+        &mut self,
+        batch: &Batch,
+        noise: &UpdateNoise,
+    ) -> Result<UpdateMetrics> {
         let dev = &self.device;
         let b = batch.size;
         let obs = tensor(&batch.obs, (b, batch.obs_dim), dev)?;
         let next_obs = tensor(&batch.next_obs, (b, batch.obs_dim), dev)?;
-        let actions = tensor(&batch.actions, (b, ACTION_DIM), dev)?;
+        let actions = tensor(&batch.actions, (b, self.action_dim), dev)?;
         let rewards = tensor(&batch.rewards, b, dev)?;
         let terminated = tensor(&batch.terminated, b, dev)?;
+        let eps_next = tensor(&noise.next, (b, self.action_dim), dev)?;
+        let eps_pi = tensor(&noise.current, (b, self.action_dim), dev)?;
         let alpha = self.nets.alpha();
 
         // Critics.
-        let eps_next = self.standard_normal(b)?;
-        let eps_pi = self.standard_normal(b)?;
         let nets = &self.nets;
         let next = nets.actor.net.sample_with_noise(&next_obs, &eps_next)?;
         let next_action = next.action.detach();
         let target = soft_bellman_target(
             &rewards,
             &terminated,
-            &nets.target1.net.forward(&next_obs, &next_action)?.detach(),
-            &nets.target2.net.forward(&next_obs, &next_action)?.detach(),
+            &nets.target1.net.q(&next_obs, &next_action)?.detach(),
+            &nets.target2.net.q(&next_obs, &next_action)?.detach(),
             &next.log_prob.detach(),
             alpha,
             self.cfg.gamma,
         )?;
-        let q1 = nets.critic1.net.forward(&obs, &actions)?;
-        let q2 = nets.critic2.net.forward(&obs, &actions)?;
+        let q1 = nets.critic1.net.q(&obs, &actions)?;
+        let q2 = nets.critic2.net.q(&obs, &actions)?;
         let loss_q = critic_loss(&q1, &q2, &target)?;
         self.critic_opt.step(&loss_q.backward()?)?;
         self.last.critic_loss = scalar(&loss_q)?;
@@ -203,8 +232,8 @@ impl SacLearner {
         // Policy and temperature, delayed.
         if self.updates.is_multiple_of(self.cfg.policy_delay) {
             let pi = nets.actor.net.sample_with_noise(&obs, &eps_pi)?;
-            let q1_pi = nets.critic1.net.forward(&obs, &pi.action)?;
-            let q2_pi = nets.critic2.net.forward(&obs, &pi.action)?;
+            let q1_pi = nets.critic1.net.q(&obs, &pi.action)?;
+            let q2_pi = nets.critic2.net.q(&obs, &pi.action)?;
             let weights: Vec<Tensor> =
                 self.policy_weights.iter().map(|v| v.as_tensor().clone()).collect();
             let loss_pi =
@@ -231,11 +260,19 @@ impl SacLearner {
         Ok(self.last)
     }
 
-    /// `(batch, ACTION_DIM)` standard-normal noise from the learner's seeded generator.
-    fn standard_normal(&mut self, batch: usize) -> Result<Tensor> {
-        let v: Vec<f32> =
-            (0..batch * ACTION_DIM).map(|_| StandardNormal.sample(&mut self.noise)).collect();
-        Tensor::from_vec(v, (batch, ACTION_DIM), &self.device)
+    /// `(batch, action_dim)` standard-normal noise from the learner's seeded generator.
+    fn standard_normal(&mut self, batch: usize) -> Vec<f32> {
+        (0..batch * self.action_dim).map(|_| StandardNormal.sample(&mut self.noise)).collect()
+    }
+
+    /// The state of the noise generator, for a checkpoint.
+    pub fn noise_rng(&self) -> &rand_pcg::Pcg64 {
+        &self.noise
+    }
+
+    /// Restores the noise generator from a checkpoint.
+    pub fn set_noise_rng(&mut self, rng: rand_pcg::Pcg64) {
+        self.noise = rng;
     }
 
     /// Every network's variables under its checkpoint prefix.

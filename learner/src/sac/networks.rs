@@ -1,10 +1,52 @@
 //! The SAC networks: policy, twin critics and their target copies, each with its own `VarMap`
 //! (so nothing filters variables by name prefix), plus the temperature log α.
+//!
+//! [`SacLearner`](super::SacLearner) needs only two things of a network, written as two small
+//! traits: a [`GaussianPolicy`] gives the mean and log std of the pre-squash Gaussian, a
+//! [`QFunction`] gives Q(s, a). The navigation CNNs of [`dvnav_common::nets`] are the default
+//! instantiation (`SacNetworks` alone means `SacNetworks<Actor, Critic>`); the pendulum test
+//! plugs in plain MLPs.
 
 use candle_core::{DType, Device, Result, Tensor, Var};
 use candle_nn::{VarBuilder, VarMap};
 use dvnav_common::config::Config;
-use dvnav_common::nets::{Actor, Critic, init_seeded};
+use dvnav_common::nets::{Actor, Critic, PolicySample, init_seeded, squashed_gaussian};
+use dvnav_common::obs::ACTION_DIM;
+
+/// π_θ(a|s) as a tanh-squashed diagonal Gaussian: the network gives μ and log σ, the sample
+/// is a = tanh(μ + σ·ε).
+pub trait GaussianPolicy {
+    /// Length of an action.
+    fn action_dim(&self) -> usize;
+    /// `(mean, log_std)` of the pre-squash Gaussian, each `(batch, action_dim)`.
+    fn mean_log_std(&self, obs: &Tensor) -> Result<(Tensor, Tensor)>;
+    /// a = tanh(μ + σ·ε) for standard-normal noise `eps` `(batch, action_dim)`, with log π(a|s).
+    fn sample_with_noise(&self, obs: &Tensor, eps: &Tensor) -> Result<PolicySample> {
+        let (mean, log_std) = self.mean_log_std(obs)?;
+        squashed_gaussian(&mean, &log_std, eps)
+    }
+}
+
+/// A soft Q-function Q_φ(s, a) → `(batch,)`.
+pub trait QFunction {
+    /// Q(s, a) for a batch of observations and actions.
+    fn q(&self, obs: &Tensor, action: &Tensor) -> Result<Tensor>;
+}
+
+impl GaussianPolicy for Actor {
+    fn action_dim(&self) -> usize {
+        ACTION_DIM
+    }
+    fn mean_log_std(&self, obs: &Tensor) -> Result<(Tensor, Tensor)> {
+        self.forward(obs)
+    }
+}
+
+impl QFunction for Critic {
+    fn q(&self, obs: &Tensor, action: &Tensor) -> Result<Tensor> {
+        self.forward(obs, action)
+    }
+}
 
 /// A network and the variables behind it.
 pub struct Owned<N> {
@@ -15,6 +57,15 @@ pub struct Owned<N> {
 }
 
 impl<N> Owned<N> {
+    /// Builds a network into a fresh `VarMap` and initialises it from `seed` with
+    /// [`init_seeded`].
+    pub fn build(dev: &Device, seed: u64, f: impl FnOnce(VarBuilder) -> Result<N>) -> Result<Self> {
+        let vars = VarMap::new();
+        let net = f(VarBuilder::from_varmap(&vars, DType::F32, dev))?;
+        init_seeded(&vars, seed)?;
+        Ok(Owned { net, vars })
+    }
+
     /// Variables with their names, sorted by name (stable order for optimizers and checkpoints).
     pub fn named_vars(&self) -> Vec<(String, Var)> {
         let data = self.vars.data().lock().expect("varmap lock");
@@ -24,40 +75,54 @@ impl<N> Owned<N> {
     }
 }
 
-fn build<N>(dev: &Device, seed: u64, f: impl FnOnce(VarBuilder) -> Result<N>) -> Result<Owned<N>> {
-    let vars = VarMap::new();
-    let net = f(VarBuilder::from_varmap(&vars, DType::F32, dev))?;
-    init_seeded(&vars, seed)?;
-    Ok(Owned { net, vars })
-}
-
 /// Everything SAC learns.
-pub struct SacNetworks {
+pub struct SacNetworks<P = Actor, Q = Critic> {
     /// π_θ.
-    pub actor: Owned<Actor>,
+    pub actor: Owned<P>,
     /// Q_φ1.
-    pub critic1: Owned<Critic>,
+    pub critic1: Owned<Q>,
     /// Q_φ2.
-    pub critic2: Owned<Critic>,
+    pub critic2: Owned<Q>,
     /// Q_φ̂1, Polyak-averaged copy of Q_φ1.
-    pub target1: Owned<Critic>,
+    pub target1: Owned<Q>,
     /// Q_φ̂2.
-    pub target2: Owned<Critic>,
+    pub target2: Owned<Q>,
     /// log α (a scalar), learned when the temperature is tuned.
     pub log_alpha: Var,
 }
 
 impl SacNetworks {
-    /// Fresh networks, deterministically initialised from `seed`; targets start as copies.
+    /// Fresh navigation networks, deterministically initialised from `seed`; targets start as
+    /// copies.
     pub fn new(cfg: &Config, seed: u64, dev: &Device) -> Result<Self> {
         let beams = cfg.env.lidar.beams;
         let n = &cfg.network;
-        let actor = build(dev, seed, |vb| Actor::new(vb, n, beams))?;
-        let critic1 = build(dev, seed.wrapping_add(1), |vb| Critic::new(vb, n, beams))?;
-        let critic2 = build(dev, seed.wrapping_add(2), |vb| Critic::new(vb, n, beams))?;
-        let target1 = build(dev, seed.wrapping_add(1), |vb| Critic::new(vb, n, beams))?;
-        let target2 = build(dev, seed.wrapping_add(2), |vb| Critic::new(vb, n, beams))?;
-        let log_alpha = Var::from_tensor(&Tensor::new(&[cfg.sac.initial_alpha.ln() as f32], dev)?)?;
+        Self::build(
+            dev,
+            seed,
+            cfg.sac.initial_alpha,
+            |vb| Actor::new(vb, n, beams),
+            |vb| Critic::new(vb, n, beams),
+        )
+    }
+}
+
+impl<P, Q> SacNetworks<P, Q> {
+    /// Fresh networks of any kind: the policy from `seed`, critic j and its target from
+    /// `seed + j` (so each target starts as a copy of its critic), log α = ln `initial_alpha`.
+    pub fn build(
+        dev: &Device,
+        seed: u64,
+        initial_alpha: f64,
+        actor: impl FnOnce(VarBuilder) -> Result<P>,
+        critic: impl Fn(VarBuilder) -> Result<Q>,
+    ) -> Result<Self> {
+        let actor = Owned::build(dev, seed, actor)?;
+        let critic1 = Owned::build(dev, seed.wrapping_add(1), &critic)?;
+        let critic2 = Owned::build(dev, seed.wrapping_add(2), &critic)?;
+        let target1 = Owned::build(dev, seed.wrapping_add(1), &critic)?;
+        let target2 = Owned::build(dev, seed.wrapping_add(2), &critic)?;
+        let log_alpha = Var::from_tensor(&Tensor::new(&[initial_alpha.ln() as f32], dev)?)?;
         Ok(Self { actor, critic1, critic2, target1, target2, log_alpha })
     }
 

@@ -35,8 +35,13 @@ impl Adam {
         let bias2 = 1.0 - self.beta2.powi(t);
         for (i, (_, var)) in self.vars.iter().enumerate() {
             let Some(g) = grads.get(var.as_tensor()) else { continue };
-            let m = ((&self.first[i] * self.beta1)? + (g * (1.0 - self.beta1))?)?;
-            let v = ((&self.second[i] * self.beta2)? + (g.sqr()? * (1.0 - self.beta2))?)?;
+            // candle detaches inner gradients but not those of the leaves: a variable's gradient
+            // can still reference the forward graph. Detached here, the moments never chain one
+            // update's graph to the next (without this the learner grew by ~7 MB per update
+            // until the OOM killer stopped it; see tests/issue_2_adam_memory.rs).
+            let g = g.detach();
+            let m = ((&self.first[i] * self.beta1)? + (&g * (1.0 - self.beta1))?)?.detach();
+            let v = ((&self.second[i] * self.beta2)? + (g.sqr()? * (1.0 - self.beta2))?)?.detach();
             let denom = ((&v / bias2)?.sqrt()? + self.eps)?;
             let update = ((&m / bias1)? / denom)?;
             var.set(&(var.as_tensor() - (update * self.lr)?)?)?;
@@ -88,7 +93,22 @@ impl Adam {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use candle_core::Device;
+    use candle_core::{Device, Tensor};
+
+    #[test]
+    fn moments_hold_no_graph() {
+        // A gradient taken through an activation reaches the variable with an op attached; the
+        // stored moments must not keep it (or the whole graph of every earlier update) alive.
+        let w = Var::new(&[[0.5f32, -0.3], [0.2, 0.8]], &Device::Cpu).unwrap();
+        let x = Tensor::new(&[[1.0f32, 2.0]], &Device::Cpu).unwrap();
+        let mut opt = Adam::new(vec![("w".into(), w.clone())], 0.01).unwrap();
+        for _ in 0..3 {
+            let y = x.matmul(w.as_tensor()).unwrap().relu().unwrap();
+            let loss = (&y * &y).unwrap().sum_all().unwrap();
+            opt.step(&loss.backward().unwrap()).unwrap();
+        }
+        assert!(opt.first.iter().chain(&opt.second).all(|t| !t.track_op()));
+    }
 
     #[test]
     fn minimizes_a_quadratic() {

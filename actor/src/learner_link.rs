@@ -1,0 +1,419 @@
+//! The actor's connection to the learner: connect and register, follow the variables stream,
+//! and stream batches in with acknowledgements, reconnecting by itself when the learner goes
+//! away.
+//!
+//! Delivery: every batch gets a sequence number that keeps increasing over the actor's life and
+//! stays in the [`Outbox`] until the learner acknowledges it. After a reconnect the unacknowledged
+//! batches are sent again with their numbers; a learner that had already inserted one answers
+//! `duplicate` and does not insert it twice. While the learner is unreachable the actor stops
+//! taking batches from its adder, so the environment loop waits instead of buffering without
+//! limit, and retries with exponential backoff (100 ms doubling to 5 s) for as long as it takes.
+
+use dvnav_common::config::Config;
+use dvnav_common::core::{TransitionBatch, Variables};
+use dvnav_common::wire::batch_to_proto;
+use dvnav_proto as pb;
+use dvnav_proto::MAX_MESSAGE_BYTES;
+use pb::learner_client::LearnerClient;
+use serde::Serialize;
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+use tokio::sync::{mpsc, watch};
+use tokio_stream::wrappers::ReceiverStream;
+use tonic::metadata::{Ascii, MetadataValue};
+use tonic::service::interceptor::InterceptedService;
+use tonic::transport::{Channel, Endpoint};
+
+/// Longest wait between two reconnection attempts.
+pub const MAX_BACKOFF: Duration = Duration::from_secs(5);
+/// After a local stop (Ctrl-C) the actor gives up delivering what is left after this long
+/// without a learner.
+pub const GIVE_UP_AFTER_STOP: Duration = Duration::from_secs(10);
+
+/// Adds `authorization: Bearer <token>` to every call when a token is set.
+#[derive(Clone)]
+pub struct AuthInterceptor {
+    header: Option<MetadataValue<Ascii>>,
+}
+
+impl AuthInterceptor {
+    /// An interceptor for `token`.
+    pub fn new(token: Option<&str>) -> anyhow::Result<Self> {
+        let header = token.map(|t| format!("Bearer {t}").parse()).transpose().map_err(|_| {
+            anyhow::anyhow!("the access token contains characters not allowed in a header")
+        })?;
+        Ok(Self { header })
+    }
+}
+
+impl tonic::service::Interceptor for AuthInterceptor {
+    fn call(&mut self, mut req: tonic::Request<()>) -> Result<tonic::Request<()>, tonic::Status> {
+        if let Some(h) = &self.header {
+            req.metadata_mut().insert("authorization", h.clone());
+        }
+        Ok(req)
+    }
+}
+
+/// The learner client type actors use.
+pub type Client = LearnerClient<InterceptedService<Channel, AuthInterceptor>>;
+
+fn endpoint(url: &str) -> anyhow::Result<Endpoint> {
+    Ok(Endpoint::from_shared(url.to_string())
+        .map_err(|e| anyhow::anyhow!("bad learner address {url:?}: {e}"))?
+        .connect_timeout(Duration::from_secs(5))
+        .http2_keep_alive_interval(Duration::from_secs(5))
+        .keep_alive_timeout(Duration::from_secs(10))
+        .keep_alive_while_idle(true))
+}
+
+fn client(channel: Channel, token: Option<&str>) -> anyhow::Result<Client> {
+    Ok(LearnerClient::with_interceptor(channel, AuthInterceptor::new(token)?)
+        .max_decoding_message_size(MAX_MESSAGE_BYTES)
+        .max_encoding_message_size(MAX_MESSAGE_BYTES))
+}
+
+/// Connects to the learner, retrying with exponential backoff until `timeout`.
+pub async fn connect(url: &str, token: Option<&str>, timeout: Duration) -> anyhow::Result<Client> {
+    let endpoint = endpoint(url)?;
+    let deadline = Instant::now() + timeout;
+    let mut backoff = Duration::from_millis(100);
+    loop {
+        match endpoint.connect().await {
+            Ok(c) => return client(c, token),
+            Err(e) if Instant::now() + backoff < deadline => {
+                tracing::debug!(%url, error = %e, ?backoff, "learner not reachable yet; retrying");
+                tokio::time::sleep(backoff).await;
+                backoff = (backoff * 2).min(MAX_BACKOFF);
+            }
+            Err(e) => anyhow::bail!("cannot reach the learner at {url} within {timeout:?}: {e}"),
+        }
+    }
+}
+
+/// What registration gives an actor.
+#[derive(Clone, Debug)]
+pub struct Registered {
+    /// Id for this connection.
+    pub actor_id: u32,
+    /// The run's configuration, from the learner.
+    pub config: Config,
+    /// Seed for the environments.
+    pub actor_seed: u64,
+    /// Run id.
+    pub run_id: String,
+    /// Where a fresh actor process starts numbering its batches.
+    pub next_sequence: u64,
+}
+
+/// Registers `name` with the learner.
+pub async fn register(client: &mut Client, name: &str) -> anyhow::Result<Registered> {
+    let reply = client
+        .register(pb::RegisterRequest {
+            actor_name: name.to_string(),
+            protocol_version: dvnav_proto::PROTOCOL_VERSION,
+            num_envs: 0,
+        })
+        .await
+        .map_err(|s| anyhow::anyhow!("registration refused ({:?}): {}", s.code(), s.message()))?
+        .into_inner();
+    let config = Config::from_toml_str(&reply.run_config_toml)
+        .map_err(|e| anyhow::anyhow!("the learner sent an unusable config: {e}"))?;
+    Ok(Registered {
+        actor_id: reply.actor_id,
+        config,
+        actor_seed: reply.actor_seed,
+        run_id: reply.run_id,
+        next_sequence: reply.next_sequence,
+    })
+}
+
+/// Domain form of a wire update.
+pub fn variables_from_proto(u: pb::VariablesUpdate) -> Variables {
+    let (stage, room) = u.assignment.map(|a| (a.stage, a.room)).unwrap_or_default();
+    Variables {
+        version: u.version,
+        policy: Arc::new(u.safetensors),
+        stage,
+        room,
+        warmup: u.warmup,
+        stop: u.stop,
+    }
+}
+
+/// Follows the variables stream into `tx` until it ends.
+pub async fn follow_variables(
+    mut client: Client,
+    actor_id: u32,
+    tx: watch::Sender<Option<Arc<Variables>>>,
+) -> Option<String> {
+    let mut stream = match client.variables(pb::VariablesRequest { actor_id }).await {
+        Ok(r) => r.into_inner(),
+        Err(s) => return Some(format!("{:?}: {}", s.code(), s.message())),
+    };
+    loop {
+        match stream.message().await {
+            Ok(Some(u)) => {
+                tx.send_replace(Some(Arc::new(variables_from_proto(u))));
+            }
+            Ok(None) => return None,
+            Err(s) => return Some(format!("{:?}: {}", s.code(), s.message())),
+        }
+    }
+}
+
+/// Batches handed to the learner and not yet acknowledged, with their sequence numbers.
+#[derive(Debug)]
+pub struct Outbox {
+    pending: VecDeque<(u64, TransitionBatch)>,
+    next_sequence: u64,
+}
+
+impl Outbox {
+    /// An empty outbox numbering from `first_sequence`.
+    pub fn new(first_sequence: u64) -> Self {
+        Self { pending: VecDeque::new(), next_sequence: first_sequence }
+    }
+
+    /// Keeps `batch` until acknowledged; returns its sequence number.
+    pub fn push(&mut self, batch: TransitionBatch) -> u64 {
+        let seq = self.next_sequence;
+        self.next_sequence += 1;
+        self.pending.push_back((seq, batch));
+        seq
+    }
+
+    /// Forgets every batch up to and including `sequence` (acknowledgements come in order).
+    pub fn ack(&mut self, sequence: u64) {
+        while self.pending.front().is_some_and(|(s, _)| *s <= sequence) {
+            self.pending.pop_front();
+        }
+    }
+
+    /// Batches waiting for an acknowledgement.
+    pub fn len(&self) -> usize {
+        self.pending.len()
+    }
+
+    /// True when everything was acknowledged.
+    pub fn is_empty(&self) -> bool {
+        self.pending.is_empty()
+    }
+
+    /// Transitions waiting for an acknowledgement.
+    pub fn pending_transitions(&self) -> u64 {
+        self.pending.iter().map(|(_, b)| b.len() as u64).sum()
+    }
+
+    /// Wire form of every pending batch, for a resend under `actor_id`.
+    fn resend(&self, actor_id: u32) -> Vec<pb::TransitionBatch> {
+        self.pending.iter().map(|(s, b)| batch_to_proto(b, actor_id, *s)).collect()
+    }
+}
+
+/// Delivery counters of a link.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct LinkCounters {
+    /// Batches handed to the learner (each counted once, however often resent).
+    pub batches_sent: u64,
+    /// Transitions handed to the learner (each counted once).
+    pub transitions_sent: u64,
+    /// Batches acknowledged.
+    pub batches_acked: u64,
+    /// Transitions the learner inserted.
+    pub transitions_acked: u64,
+    /// Batches the learner recognised as already inserted.
+    pub duplicate_acks: u64,
+    /// Batches sent again after a reconnect.
+    pub batches_resent: u64,
+    /// Successful reconnections.
+    pub reconnects: u64,
+    /// Transitions still unacknowledged when the link gave up (0 after a clean end).
+    pub transitions_undelivered: u64,
+}
+
+/// Shared between the send and receive halves of a stream, which run in one task: the locks
+/// are never contended, they only make the future `Send`.
+struct Session<'a> {
+    outbox: &'a Mutex<Outbox>,
+    counters: &'a Mutex<LinkCounters>,
+    input_closed: &'a Mutex<bool>,
+}
+
+impl Session<'_> {
+    /// One `Transitions` stream: resend what is pending, then forward new batches, reading
+    /// acknowledgements concurrently. Ok when the adder closed and everything is acknowledged.
+    async fn run(
+        &self,
+        client: &mut Client,
+        actor_id: u32,
+        batches: &mut mpsc::Receiver<TransitionBatch>,
+    ) -> Result<(), String> {
+        let (out_tx, out_rx) = mpsc::channel::<pb::TransitionBatch>(2);
+        let status = |s: tonic::Status| format!("{:?}: {}", s.code(), s.message());
+        let mut acks =
+            client.transitions(ReceiverStream::new(out_rx)).await.map_err(status)?.into_inner();
+        let resend = self.outbox.lock().expect("link lock").resend(actor_id);
+        self.counters.lock().expect("link lock").batches_resent += resend.len() as u64;
+        let send = async move {
+            for m in resend {
+                out_tx.send(m).await.map_err(|_| "the request stream closed".to_string())?;
+            }
+            while !*self.input_closed.lock().expect("link lock") {
+                let Some(b) = batches.recv().await else {
+                    *self.input_closed.lock().expect("link lock") = true;
+                    break;
+                };
+                let n = b.len() as u64;
+                let msg = {
+                    // In the outbox before the first send: if the stream breaks, it is resent.
+                    let mut ob = self.outbox.lock().expect("link lock");
+                    let seq = ob.push(b);
+                    batch_to_proto(&ob.pending.back().expect("just pushed").1, actor_id, seq)
+                };
+                {
+                    let mut c = self.counters.lock().expect("link lock");
+                    c.batches_sent += 1;
+                    c.transitions_sent += n;
+                }
+                out_tx.send(msg).await.map_err(|_| "the request stream closed".to_string())?;
+            }
+            Ok::<(), String>(())
+        };
+        let receive = async {
+            while let Some(ack) = acks.message().await.map_err(status)? {
+                self.outbox.lock().expect("link lock").ack(ack.sequence);
+                let mut c = self.counters.lock().expect("link lock");
+                c.batches_acked += 1;
+                c.transitions_acked += ack.accepted as u64;
+                c.duplicate_acks += ack.duplicate as u64;
+            }
+            Ok::<(), String>(())
+        };
+        tokio::pin!(send, receive);
+        let mut sent_all = false;
+        loop {
+            tokio::select! {
+                r = &mut send, if !sent_all => { r?; sent_all = true; }
+                r = &mut receive => {
+                    r?;
+                    return if sent_all && self.outbox.lock().expect("link lock").is_empty() {
+                        Ok(())
+                    } else {
+                        Err("the learner ended the stream early".into())
+                    };
+                }
+            }
+        }
+    }
+}
+
+/// Connection settings.
+#[derive(Clone, Debug)]
+pub struct LinkOptions {
+    /// Learner address.
+    pub url: String,
+    /// Actor name.
+    pub name: String,
+    /// Shared token.
+    pub token: Option<String>,
+}
+
+/// Runs the link until the adder closes `batches` and the learner has acknowledged everything,
+/// reconnecting whenever the learner goes away. Gives up only after a local stop (`stop`) with
+/// no learner for [`GIVE_UP_AFTER_STOP`].
+pub async fn run_link(
+    opts: LinkOptions,
+    mut client: Client,
+    first: Registered,
+    mut batches: mpsc::Receiver<TransitionBatch>,
+    variables: watch::Sender<Option<Arc<Variables>>>,
+    stop: Arc<AtomicBool>,
+) -> LinkCounters {
+    let outbox = Mutex::new(Outbox::new(first.next_sequence));
+    let counters = Mutex::new(LinkCounters::default());
+    let input_closed = Mutex::new(false);
+    let session = Session { outbox: &outbox, counters: &counters, input_closed: &input_closed };
+    let mut actor_id = first.actor_id;
+    loop {
+        let follower = tokio::spawn(follow_variables(client.clone(), actor_id, variables.clone()));
+        let end = session.run(&mut client, actor_id, &mut batches).await;
+        follower.abort();
+        let error = match end {
+            Ok(()) => break,
+            Err(e) => e,
+        };
+        tracing::warn!(
+            name = %opts.name,
+            error = %error,
+            pending_batches = outbox.lock().expect("link lock").len(),
+            "lost the learner; reconnecting"
+        );
+        let lost_at = Instant::now();
+        let mut backoff = Duration::from_millis(100);
+        let reconnected = loop {
+            if stop.load(Ordering::Relaxed) && lost_at.elapsed() > GIVE_UP_AFTER_STOP {
+                break None;
+            }
+            tokio::time::sleep(backoff).await;
+            backoff = (backoff * 2).min(MAX_BACKOFF);
+            let Ok(ep) = endpoint(&opts.url) else { break None };
+            let Ok(channel) = ep.connect().await else { continue };
+            let Ok(mut c) = client_for(channel, &opts) else { break None };
+            match register(&mut c, &opts.name).await {
+                Ok(reg) => break Some((c, reg)),
+                Err(e) => tracing::debug!(error = %e, "re-registration failed; retrying"),
+            }
+        };
+        let Some((c, reg)) = reconnected else {
+            tracing::error!(
+                name = %opts.name,
+                undelivered = outbox.lock().expect("link lock").pending_transitions(),
+                "giving up on the learner after a local stop"
+            );
+            break;
+        };
+        tracing::info!(name = %opts.name, actor_id = reg.actor_id, "reconnected to the learner");
+        client = c;
+        actor_id = reg.actor_id;
+        counters.lock().expect("link lock").reconnects += 1;
+    }
+    let mut c = counters.into_inner().expect("link lock");
+    c.transitions_undelivered = outbox.lock().expect("link lock").pending_transitions();
+    c
+}
+
+fn client_for(channel: Channel, opts: &LinkOptions) -> anyhow::Result<Client> {
+    client(channel, opts.token.as_deref())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn batch(n: usize) -> TransitionBatch {
+        let mut b = TransitionBatch::with_capacity(1, n);
+        for _ in 0..n {
+            b.push(&[0.0], [0.0, 0.0], 0.0, &[0.0], false, false, 1);
+        }
+        b
+    }
+
+    #[test]
+    fn outbox_keeps_batches_until_acknowledged_in_order() {
+        let mut o = Outbox::new(7);
+        assert_eq!(o.push(batch(2)), 7);
+        assert_eq!(o.push(batch(3)), 8);
+        assert_eq!(o.push(batch(4)), 9);
+        assert_eq!(o.pending_transitions(), 9);
+        o.ack(8);
+        assert_eq!(o.len(), 1);
+        let resend = o.resend(3);
+        assert_eq!((resend[0].sequence, resend[0].actor_id, resend[0].count), (9, 3, 4));
+        o.ack(9);
+        assert!(o.is_empty());
+        assert_eq!(o.push(batch(1)), 10, "numbering continues");
+    }
+}

@@ -1,0 +1,276 @@
+//! A learning test with a known answer: SAC on pendulum swing-up (Gym's `Pendulum-v1`
+//! dynamics) with CleanRL's settings — MLP 256x256 policy and critics, batch 256, learning rate
+//! 3e-4, auto-tuned α, 5,000 random steps first, one update per step — must reach a mean
+//! return of at least −250 over the last 10 episodes within 20,000 steps, as reference SAC
+//! implementations do (a random policy scores about −1,200, a good one about −150).
+//!
+//! It runs the real `SacLearner` (the same update as the navigation learner, with MLPs in
+//! place of the CNNs) in-process: no gRPC, no actors. Slow in the dev profile, so it is
+//! `#[ignore]`d in `make test` and run by `make test-learning`, which CI calls.
+
+use candle_core::{Device, Module, Result, Tensor};
+use candle_nn::{Linear, VarBuilder};
+use dvnav_common::config::SacConfig;
+use dvnav_learner::replay::Batch;
+use dvnav_learner::sac::networks::{GaussianPolicy, QFunction};
+use dvnav_learner::sac::{SacLearner, SacNetworks};
+use rand::{Rng, SeedableRng};
+use rand_distr::{Distribution, StandardNormal};
+use std::f64::consts::PI;
+use std::time::Instant;
+
+/// Gym's `Pendulum-v1`: θ = 0 is upright; the reward is −(θ² + 0.1·θ̇² + 0.001·u²) with θ
+/// normalized to [−π, π); 200 steps per episode, which end by time limit only (truncation, so
+/// every transition bootstraps).
+pub struct Pendulum {
+    th: f64,
+    thdot: f64,
+    steps: u32,
+}
+
+impl Pendulum {
+    /// Largest torque.
+    pub const MAX_TORQUE: f64 = 2.0;
+    const MAX_SPEED: f64 = 8.0;
+    const DT: f64 = 0.05;
+    const G: f64 = 10.0;
+    const M: f64 = 1.0;
+    const L: f64 = 1.0;
+    /// Episode length (time limit).
+    pub const MAX_STEPS: u32 = 200;
+
+    /// θ ~ U(−π, π), θ̇ ~ U(−1, 1), as Gym's `reset`.
+    pub fn reset(rng: &mut impl Rng) -> Self {
+        Self { th: rng.random_range(-PI..PI), thdot: rng.random_range(-1.0..1.0), steps: 0 }
+    }
+
+    /// [cos θ, sin θ, θ̇].
+    pub fn observe(&self) -> [f32; 3] {
+        [self.th.cos() as f32, self.th.sin() as f32, self.thdot as f32]
+    }
+
+    /// Applies torque `u` (clipped to ±2) for one step; returns the reward and whether the
+    /// time limit was reached.
+    pub fn step(&mut self, u: f64) -> (f64, bool) {
+        let u = u.clamp(-Self::MAX_TORQUE, Self::MAX_TORQUE);
+        let th_norm = (self.th + PI).rem_euclid(2.0 * PI) - PI;
+        let cost = th_norm * th_norm + 0.1 * self.thdot * self.thdot + 0.001 * u * u;
+        let accel = 3.0 * Self::G / (2.0 * Self::L) * self.th.sin()
+            + 3.0 / (Self::M * Self::L * Self::L) * u;
+        self.thdot = (self.thdot + accel * Self::DT).clamp(-Self::MAX_SPEED, Self::MAX_SPEED);
+        self.th += self.thdot * Self::DT;
+        self.steps += 1;
+        (-cost, self.steps >= Self::MAX_STEPS)
+    }
+}
+
+/// CleanRL's actor: obs → 256 → 256 → (mean, log std), ReLU, log std squashed into [−5, 2].
+pub struct MlpPolicy {
+    fc1: Linear,
+    fc2: Linear,
+    mean: Linear,
+    log_std: Linear,
+    action_dim: usize,
+}
+
+impl MlpPolicy {
+    /// A policy for `obs_dim`-long observations and `action_dim`-long actions.
+    pub fn new(vb: VarBuilder, obs_dim: usize, action_dim: usize, hidden: usize) -> Result<Self> {
+        Ok(Self {
+            fc1: candle_nn::linear(obs_dim, hidden, vb.pp("fc1"))?,
+            fc2: candle_nn::linear(hidden, hidden, vb.pp("fc2"))?,
+            mean: candle_nn::linear(hidden, action_dim, vb.pp("mean"))?,
+            log_std: candle_nn::linear(hidden, action_dim, vb.pp("log_std"))?,
+            action_dim,
+        })
+    }
+}
+
+impl GaussianPolicy for MlpPolicy {
+    fn action_dim(&self) -> usize {
+        self.action_dim
+    }
+    fn mean_log_std(&self, obs: &Tensor) -> Result<(Tensor, Tensor)> {
+        let (min, max) = (-5.0, 2.0);
+        let h = self.fc2.forward(&self.fc1.forward(obs)?.relu()?)?.relu()?;
+        let log_std = ((self.log_std.forward(&h)?.tanh()? + 1.0)? * (0.5 * (max - min)))? + min;
+        Ok((self.mean.forward(&h)?, log_std?))
+    }
+}
+
+/// CleanRL's soft Q-network: [obs, action] → 256 → 256 → 1, ReLU.
+pub struct MlpCritic {
+    fc1: Linear,
+    fc2: Linear,
+    q: Linear,
+}
+
+impl MlpCritic {
+    /// A critic for `obs_dim`-long observations and `action_dim`-long actions.
+    pub fn new(vb: VarBuilder, obs_dim: usize, action_dim: usize, hidden: usize) -> Result<Self> {
+        Ok(Self {
+            fc1: candle_nn::linear(obs_dim + action_dim, hidden, vb.pp("fc1"))?,
+            fc2: candle_nn::linear(hidden, hidden, vb.pp("fc2"))?,
+            q: candle_nn::linear(hidden, 1, vb.pp("q"))?,
+        })
+    }
+}
+
+impl QFunction for MlpCritic {
+    fn q(&self, obs: &Tensor, action: &Tensor) -> Result<Tensor> {
+        let h = Tensor::cat(&[obs, action], 1)?;
+        let h = self.fc2.forward(&self.fc1.forward(&h)?.relu()?)?.relu()?;
+        self.q.forward(&h)?.squeeze(1)
+    }
+}
+
+/// A plain growing replay of pendulum transitions (the run never exceeds its capacity).
+#[derive(Default)]
+struct Replay {
+    obs: Vec<[f32; 3]>,
+    actions: Vec<f32>,
+    rewards: Vec<f32>,
+    next_obs: Vec<[f32; 3]>,
+}
+
+impl Replay {
+    fn sample(&self, size: usize, rng: &mut impl Rng, out: &mut Batch) {
+        *out = Batch { size, obs_dim: 3, ..Default::default() };
+        for _ in 0..size {
+            let j = rng.random_range(0..self.rewards.len());
+            out.obs.extend_from_slice(&self.obs[j]);
+            out.next_obs.extend_from_slice(&self.next_obs[j]);
+            out.actions.push(self.actions[j]);
+            out.rewards.push(self.rewards[j]);
+            // Pendulum episodes end by time limit only: never terminated.
+            out.terminated.push(0.0);
+        }
+    }
+}
+
+/// What a training run reached.
+struct Outcome {
+    returns: Vec<f64>,
+    updates: u64,
+}
+
+fn train(total_steps: usize, learning_starts: usize, hidden: usize, seed: u64) -> Result<Outcome> {
+    let dev = Device::Cpu;
+    let cfg = SacConfig {
+        gamma: 0.99,
+        tau: 0.005,
+        batch_size: 256,
+        actor_lr: 3e-4,
+        critic_lr: 3e-4,
+        alpha_lr: 3e-4,
+        autotune_alpha: true,
+        initial_alpha: 0.2,
+        target_entropy: None,
+        // CleanRL updates the policy twice every second step; once per step is the same rate.
+        policy_delay: 1,
+        policy_l2: 0.0,
+        updates_per_env_step: 1.0,
+        learning_starts: learning_starts as u64,
+    };
+    let nets = SacNetworks::build(
+        &dev,
+        seed,
+        cfg.initial_alpha,
+        |vb| MlpPolicy::new(vb, 3, 1, hidden),
+        |vb| MlpCritic::new(vb, 3, 1, hidden),
+    )?;
+    let mut learner = SacLearner::new(nets, cfg.clone(), dev.clone(), seed)?;
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed ^ 0x9e37_79b9);
+    let mut replay = Replay::default();
+    let mut batch = Batch::default();
+    let mut env = Pendulum::reset(&mut rng);
+    let mut ret = 0.0;
+    let mut out = Outcome { returns: Vec::new(), updates: 0 };
+    let started = Instant::now();
+    for step in 0..total_steps {
+        let obs = env.observe();
+        let action = if step < learning_starts {
+            rng.random_range(-1.0f32..1.0)
+        } else {
+            let eps: f32 = StandardNormal.sample(&mut rng);
+            let o = Tensor::from_slice(&obs, (1, 3), &dev)?;
+            let e = Tensor::from_slice(&[eps], (1, 1), &dev)?;
+            let a = learner.nets.actor.net.sample_with_noise(&o, &e)?.action;
+            a.flatten_all()?.to_vec1::<f32>()?[0]
+        };
+        let (reward, time_limit) = env.step(action as f64 * Pendulum::MAX_TORQUE);
+        ret += reward;
+        replay.obs.push(obs);
+        replay.actions.push(action);
+        replay.rewards.push(reward as f32);
+        replay.next_obs.push(env.observe());
+        if time_limit {
+            out.returns.push(ret);
+            let n = out.returns.len();
+            if n.is_multiple_of(10) {
+                let last: f64 = out.returns[n - 10..].iter().sum::<f64>() / 10.0;
+                eprintln!(
+                    "pendulum: step {:>6}, episode {n:>3}, mean return of the last 10 {last:>8.1}, alpha {:.3}, {:.0} s",
+                    step + 1,
+                    learner.last_metrics().alpha,
+                    started.elapsed().as_secs_f64()
+                );
+            }
+            env = Pendulum::reset(&mut rng);
+            ret = 0.0;
+        }
+        if step >= learning_starts {
+            replay.sample(cfg.batch_size, &mut rng, &mut batch);
+            learner.update(&batch)?;
+        }
+    }
+    out.updates = learner.updates();
+    Ok(out)
+}
+
+#[test]
+fn pendulum_dynamics_match_gym() {
+    // From θ = π/2 (horizontal), θ̇ = 0, u = 1: θ̇' = (15·1 + 3·1)·0.05 = 0.9, θ' = π/2 + 0.045;
+    // cost = (π/2)² + 0.001.
+    let mut p = Pendulum { th: PI / 2.0, thdot: 0.0, steps: 0 };
+    let (r, done) = p.step(1.0);
+    assert!((r + (PI / 2.0).powi(2) + 0.001).abs() < 1e-12, "{r}");
+    assert!((p.thdot - 0.9).abs() < 1e-12 && (p.th - (PI / 2.0 + 0.045)).abs() < 1e-12);
+    assert!(!done);
+    // Speed is clipped at 8 and torque at 2.
+    let mut p = Pendulum { th: 0.0, thdot: 7.99, steps: 0 };
+    let (r, _) = p.step(100.0);
+    assert_eq!(p.thdot, 8.0);
+    assert!((r + 0.1 * 7.99f64.powi(2) + 0.004).abs() < 1e-12, "{r}");
+    // Angles are normalized in the cost: θ = 2π is upright.
+    let mut p = Pendulum { th: 2.0 * PI, thdot: 0.0, steps: Pendulum::MAX_STEPS - 1 };
+    let (r, done) = p.step(0.0);
+    assert!(r.abs() < 1e-20 && done);
+}
+
+#[test]
+#[ignore = "trains for minutes; run by `make test-learning` (CI)"]
+fn sac_swings_up_the_pendulum_within_20k_steps() {
+    let started = Instant::now();
+    let out = train(20_000, 5_000, 256, 1).unwrap();
+    let n = out.returns.len();
+    let last10 = out.returns[n - 10..].iter().sum::<f64>() / 10.0;
+    eprintln!(
+        "pendulum: {n} episodes, {} updates, mean return of the last 10 episodes {last10:.1}, {:.0} s",
+        out.updates,
+        started.elapsed().as_secs_f64()
+    );
+    assert_eq!(n, 100);
+    assert!(last10 >= -250.0, "mean return of the last 10 episodes {last10:.1} < -250");
+}
+
+#[test]
+fn sac_on_the_pendulum_runs_and_is_deterministic() {
+    // A short run with small networks, in `make test`: the generic learner trains an MLP pair
+    // end to end, and the same seed gives the same returns.
+    let a = train(600, 400, 32, 3).unwrap();
+    let b = train(600, 400, 32, 3).unwrap();
+    assert_eq!(a.returns, b.returns);
+    assert_eq!((a.returns.len(), a.updates), (3, 200));
+    assert!(a.returns.iter().all(|r| r.is_finite()));
+}

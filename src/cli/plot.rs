@@ -1,0 +1,175 @@
+//! `dvnav plot`: figures from a run, as PNG ([`crate::render`]).
+
+use super::inspect::EpisodeFilter;
+use crate::render::trajectories::{RoomPanel, Trajectory, render};
+use clap::{Args, Subcommand};
+use dvnav_common::core::Outcome;
+use dvnav_common::episode_log::{EpisodeRecord, read_episodes, read_steps};
+use dvnav_common::sim::Room;
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+/// Draw figures from MCAP episode logs.
+#[derive(Args, Debug)]
+pub struct PlotArgs {
+    #[command(subcommand)]
+    command: PlotCommand,
+}
+
+#[derive(Subcommand, Debug)]
+enum PlotCommand {
+    /// The selected episodes' paths over their rooms (one panel per room), coloured by
+    /// outcome: green success, red collision, orange timeout.
+    Trajectories(TrajectoriesArgs),
+}
+
+/// `dvnav plot trajectories`.
+#[derive(Args, Debug)]
+pub struct TrajectoriesArgs {
+    /// An .mcap file, a directory of them, or a run directory (searched recursively).
+    pub path: PathBuf,
+    /// The PNG to write.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Which episodes.
+    #[command(flatten)]
+    pub filter: EpisodeFilter,
+    /// Draw at most this many episodes, the latest ones (highest ids per actor).
+    #[arg(long, default_value_t = 100)]
+    pub max: usize,
+    /// Side of each room panel (pixels).
+    #[arg(long, default_value_t = 640)]
+    pub size: u32,
+}
+
+pub fn run(args: PlotArgs) -> anyhow::Result<ExitCode> {
+    match args.command {
+        PlotCommand::Trajectories(a) => trajectories(a),
+    }
+}
+
+/// The latest `max` records (highest ids, per actor in turn), in their original order.
+fn latest(mut records: Vec<EpisodeRecord>, max: usize) -> Vec<EpisodeRecord> {
+    if records.len() > max {
+        // Records are sorted by (actor id, episode id); rank by id across actors.
+        let mut ids: Vec<u64> = records.iter().map(|r| r.summary.episode_id).collect();
+        ids.sort_unstable();
+        let cut = ids[ids.len() - max];
+        let mut above = records.iter().filter(|r| r.summary.episode_id > cut).count();
+        records.retain(|r| {
+            let id = r.summary.episode_id;
+            if id > cut {
+                true
+            } else if id == cut && above < max {
+                above += 1;
+                true
+            } else {
+                false
+            }
+        });
+    }
+    records
+}
+
+/// Reads the paths of `records` (grouped by file, so each file is read once) and groups them
+/// by room.
+fn panels(records: &[EpisodeRecord]) -> anyhow::Result<Vec<RoomPanel>> {
+    let mut by_file: BTreeMap<&Path, BTreeSet<u64>> = BTreeMap::new();
+    for r in records {
+        by_file.entry(r.file.as_path()).or_default().insert(r.summary.episode_id);
+    }
+    let mut steps = BTreeMap::new();
+    for (file, ids) in by_file {
+        for (id, s) in read_steps(file, &ids)? {
+            steps.insert((file.to_path_buf(), id), s);
+        }
+    }
+    let mut rooms: BTreeMap<String, RoomPanel> = BTreeMap::new();
+    for r in records {
+        let s = &r.summary;
+        let Some(path) = steps.get(&(r.file.clone(), s.episode_id)) else {
+            tracing::warn!(episode = s.episode_id, file = %r.file.display(), "no step records; skipped");
+            continue;
+        };
+        let panel = rooms.entry(s.room.clone()).or_insert_with(|| RoomPanel {
+            name: s.room.clone(),
+            room: match Room::builtin(&s.room) {
+                Ok(room) => Some(room.spec().clone()),
+                Err(e) => {
+                    tracing::warn!(room = %s.room, error = %e, "drawing paths without the room");
+                    None
+                }
+            },
+            trajectories: Vec::new(),
+        });
+        panel.trajectories.push(Trajectory {
+            points: path.iter().map(|p| [p.x, p.y]).collect(),
+            outcome: Outcome::from_proto(s.outcome),
+            goal: [s.goal_x, s.goal_y],
+            radius: footprint_radius(&s.footprint),
+        });
+    }
+    Ok(rooms.into_values().collect())
+}
+
+/// The radius in a logged footprint description (`circle r=0.2`).
+fn footprint_radius(footprint: &str) -> Option<f64> {
+    footprint.strip_prefix("circle r=")?.trim().parse().ok().filter(|r: &f64| *r > 0.0)
+}
+
+fn trajectories(args: TrajectoriesArgs) -> anyhow::Result<ExitCode> {
+    anyhow::ensure!(args.path.exists(), "{} does not exist", args.path.display());
+    anyhow::ensure!(args.max > 0, "--max must be at least 1");
+    let records = latest(args.filter.apply(read_episodes(&args.path)?), args.max);
+    anyhow::ensure!(!records.is_empty(), "no logged episode under {} matches", args.path.display());
+    let panels = panels(&records)?;
+    let n: usize = panels.iter().map(|p| p.trajectories.len()).sum();
+    let canvas = render(&panels, args.size)?;
+    if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)?;
+    }
+    std::fs::write(&args.out, canvas.encode_png()?)?;
+    eprintln!(
+        "dvnav plot: {n} episodes in {} rooms -> {} ({}x{} px)",
+        panels.len(),
+        args.out.display(),
+        canvas.width(),
+        canvas.height()
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rec(actor_id: u32, id: u64) -> EpisodeRecord {
+        EpisodeRecord {
+            file: PathBuf::from("x.mcap"),
+            summary: dvnav_proto::EpisodeSummary { actor_id, episode_id: id, ..Default::default() },
+        }
+    }
+
+    #[test]
+    fn footprint_radius_is_read_from_circles_only() {
+        assert_eq!(footprint_radius("circle r=0.2"), Some(0.2));
+        assert_eq!(footprint_radius("rect 0.4x0.3"), None);
+        assert_eq!(footprint_radius("circle r=-1"), None);
+    }
+
+    #[test]
+    fn latest_keeps_the_highest_ids() {
+        let records = vec![rec(0, 1), rec(0, 5), rec(0, 9), rec(1, 2), rec(1, 5), rec(1, 7)];
+        let keep = |max| -> Vec<(u32, u64)> {
+            latest(records.clone(), max)
+                .iter()
+                .map(|r| (r.summary.actor_id, r.summary.episode_id))
+                .collect()
+        };
+        assert_eq!(keep(2), [(0, 9), (1, 7)]);
+        assert_eq!(keep(3), [(0, 5), (0, 9), (1, 7)]);
+        assert_eq!(keep(4), [(0, 5), (0, 9), (1, 5), (1, 7)]);
+        assert_eq!(keep(10).len(), 6);
+    }
+}
