@@ -17,7 +17,7 @@ test:
 	$(CARGO) test --workspace --doc
 
 # The SAC learning test with a known answer: pendulum swing-up to a mean return >= -250 within
-# 20,000 steps (learner/tests/sac/pendulum.rs), ~8 min on the 2-core CI machine; too slow for
+# 20,000 steps (learner/tests/sac/pendulum.rs), 7-10 min on the busy 2-core dev machine; too slow for
 # `make test`, so CI runs it after. One candle thread: its spin-barrier pool and rayon matmuls
 # made the same test 8x slower on a busy 2-core machine.
 test-learning:
@@ -54,8 +54,12 @@ fmt:
 bench: release
 	./target/release/dvnav bench env --json
 	./target/release/dvnav bench transport --json
-	./target/release/dvnav bench learner --batch 256 --json
-	./target/release/dvnav bench learner --batch 128 --json
+	./target/release/dvnav bench learner --batch 256 --torch --json
+	./target/release/dvnav bench learner --batch 128 --torch --json
+
+# Python with PyTorch for the comparison in `make bench` (optional, ~3 GB download).
+torch-venv:
+	python3 -m venv .venv && .venv/bin/pip install torch numpy
 
 # Train with the default config: a learner plus 2 actors on this machine.
 train: release

@@ -105,3 +105,53 @@ fn learner_and_two_actors_train_and_shut_down_cleanly() {
     let report: Value = serde_json::from_slice(&inspect.stdout).unwrap();
     assert_eq!(n(&report["episodes"]), episodes.len() as u64);
 }
+
+/// `dvnav train --resume DIR`: a stopped run continues from its newest checkpoint with fresh
+/// actors, in the same directory, with its counters, curriculum and weight versions going on.
+#[test]
+fn a_stopped_run_resumes_from_its_checkpoint() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("resume.toml");
+    // The smoke config, one actor, no episode logs, a smaller first budget.
+    let text = SMOKE_CONFIG
+        .replace("steps = 3000", "steps = 1500")
+        .replace("every_nth_episode = 2", "every_nth_episode = 0");
+    std::fs::write(&config, text).unwrap();
+    let out = dir.path().join("run");
+    let train = |extra: &[&str]| {
+        let r = Command::new(env!("CARGO_BIN_EXE_dvnav"))
+            .args(["train", "--actors", "1"])
+            .args(extra)
+            .env("RUST_LOG", "info")
+            .output()
+            .expect("dvnav runs");
+        let learner_log = std::fs::read_to_string(out.join("logs/learner.log")).unwrap_or_default();
+        (r, learner_log)
+    };
+    let summary = || -> Value {
+        serde_json::from_slice(&std::fs::read(out.join("run_summary.json")).unwrap()).unwrap()
+    };
+    let (first, log) =
+        train(&["--config", config.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(first.status.success(), "{}\n{log}", String::from_utf8_lossy(&first.stderr));
+    let s1 = summary();
+
+    // Without --resume a used directory is refused.
+    let (refused, _) = train(&["--out", out.to_str().unwrap()]);
+    assert!(!refused.status.success());
+
+    let (second, log) = train(&["--resume", out.to_str().unwrap(), "--steps", "3000"]);
+    assert!(second.status.success(), "{}\n{log}", String::from_utf8_lossy(&second.stderr));
+    assert!(log.contains("resumed"), "{log}");
+    let s2 = summary();
+    let n = |v: &Value| v.as_u64().unwrap_or_else(|| panic!("not a count: {v}"));
+    assert!(n(&s2["transitions_received"]) >= 3000, "{s2}");
+    assert!(
+        n(&s2["transitions_received"])
+            >= n(&s1["transitions_received"]) + n(&s2["transitions_sent"]),
+        "counted on from the checkpoint: {s1}\n{s2}"
+    );
+    assert!(n(&s2["updates"]) > n(&s1["updates"]), "{s1}\n{s2}");
+    assert!(n(&s2["weight_version"]) >= n(&s1["weight_version"]), "{s1}\n{s2}");
+    assert_eq!(s2["clean_shutdown"], true, "{s2}");
+}

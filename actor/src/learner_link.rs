@@ -64,6 +64,9 @@ fn endpoint(url: &str) -> anyhow::Result<Endpoint> {
     Ok(Endpoint::from_shared(url.to_string())
         .map_err(|e| anyhow::anyhow!("bad learner address {url:?}: {e}"))?
         .connect_timeout(Duration::from_secs(5))
+        // Windows sized for ~0.5 MB batches and ~1 MB weights, as on the learner's side.
+        .initial_stream_window_size(4 << 20)
+        .initial_connection_window_size(16 << 20)
         .http2_keep_alive_interval(Duration::from_secs(5))
         .keep_alive_timeout(Duration::from_secs(10))
         .keep_alive_while_idle(true))

@@ -58,8 +58,13 @@ impl Default for RunConfig {
 pub struct EnvConfig {
     /// Control period ΔT in seconds.
     pub dt: f64,
-    /// Radius of the circular meta robot in metres.
+    /// Radius of the circular meta robot in metres (the robot, unless `footprint` is set).
     pub robot_radius: f64,
+    /// The robot's footprint when it is not the circular meta robot: `[env.footprint]` with
+    /// `[[env.footprint.parts]]` as in a footprint file (README § Rooms). Absent: a disc of
+    /// `robot_radius`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub footprint: Option<crate::sim::Footprint>,
     /// Linear velocity bound v_max (m/s); commands lie in [0, v_max].
     pub v_max: f64,
     /// Angular velocity bound ω_max (rad/s); commands lie in [-ω_max, ω_max].
@@ -86,6 +91,7 @@ impl Default for EnvConfig {
         Self {
             dt: 0.2,
             robot_radius: 0.2,
+            footprint: None,
             v_max: 0.5,
             omega_max: std::f64::consts::FRAC_PI_2,
             goal_tolerance: 0.2,
@@ -444,6 +450,9 @@ impl Config {
         let e = &self.env;
         positive("env.dt", e.dt)?;
         positive("env.robot_radius", e.robot_radius)?;
+        if let Some(f) = &e.footprint {
+            f.validate().map_err(|err| bad("env.footprint", format!("{err:#}")))?;
+        }
         positive("env.v_max", e.v_max)?;
         positive("env.omega_max", e.omega_max)?;
         positive("env.goal_tolerance", e.goal_tolerance)?;

@@ -172,6 +172,45 @@ mod tests {
         b
     }
 
+    /// Untrusted bytes never panic the decoder: random buffers, truncations and byte flips of
+    /// a valid message either fail to decode or are refused by validation (or are valid).
+    #[test]
+    fn random_and_damaged_messages_never_panic() {
+        use prost::Message;
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(99);
+        let valid = batch_to_proto(&sample(), 1, 0).encode_to_vec();
+        let mut decoded = 0;
+        let mut accepted = 0;
+        for i in 0..20_000 {
+            let bytes: Vec<u8> = match i % 3 {
+                0 => (0..rng.random_range(0..200)).map(|_| rng.random()).collect(),
+                1 => valid[..rng.random_range(0..valid.len())].to_vec(),
+                _ => {
+                    let mut v = valid.clone();
+                    for _ in 0..rng.random_range(1..6) {
+                        let j = rng.random_range(0..v.len());
+                        v[j] = rng.random();
+                    }
+                    v
+                }
+            };
+            if let Ok(msg) = pb::TransitionBatch::decode(bytes.as_slice()) {
+                decoded += 1;
+                if let Ok(b) = batch_from_proto(msg, 3) {
+                    accepted += 1;
+                    // Whatever passes is internally consistent.
+                    assert_eq!(b.observations.len(), b.len() * 3);
+                    assert_eq!(b.next_observations.len(), b.len() * 3);
+                    assert_eq!(b.actions.len(), b.len() * ACTION_DIM);
+                    assert!(b.rewards.iter().all(|r| r.is_finite()));
+                }
+            }
+        }
+        assert!(decoded > 1_000, "the damaged inputs exercised validation ({decoded} decoded)");
+        assert!(accepted < decoded, "validation refused some ({accepted} of {decoded})");
+    }
+
     #[test]
     fn round_trips() {
         let b = sample();

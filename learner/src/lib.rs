@@ -13,7 +13,7 @@
 //! - [`sac`]: networks, Adam, the losses ([`sac::learning`]) and [`sac::SacLearner`].
 //! - [`variable_source`]: versioned weights out to actors.
 //! - [`curriculum`]: the room curriculum rule.
-//! - [`trainer`]: the training thread. [`checkpoint`]: atomic checkpoints.
+//! - [`trainer`]: the training thread. [`checkpoint`]: atomic checkpoints and exact resume.
 //! - [`metrics`]: live metrics, Prometheus text over HTTP (`/metrics`) and `metrics.csv`.
 //! - [`run`]: a whole learner process, for `dvnav learner` and `dvnav train`.
 

@@ -127,8 +127,7 @@ pub async fn run(
     let service = LearnerService::server(state.clone());
     let mut server_stop = state.shutdown_signal();
     let server = tokio::spawn(
-        tonic::transport::Server::builder()
-            .http2_keepalive_interval(Some(Duration::from_secs(10)))
+        crate::service::transport_server()
             .add_service(service)
             .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async move {
                 let _ = server_stop.wait_for(|s| *s).await;

@@ -56,6 +56,17 @@ impl LearnerService {
     }
 }
 
+/// The HTTP/2 server for the learner service. Flow-control windows are sized for ~0.5 MB
+/// batches and ~1 MB weight messages (with the 64 KiB defaults every 64 KiB of a message waits
+/// for a window update); keepalive pings notice an actor whose machine vanished.
+pub fn transport_server() -> tonic::transport::Server {
+    tonic::transport::Server::builder()
+        .initial_stream_window_size(Some(4 << 20))
+        .initial_connection_window_size(Some(16 << 20))
+        .http2_keepalive_interval(Some(std::time::Duration::from_secs(5)))
+        .http2_keepalive_timeout(Some(std::time::Duration::from_secs(10)))
+}
+
 /// Wire form of the variables an actor receives.
 pub fn variables_to_proto(v: &Variables) -> pb::VariablesUpdate {
     pb::VariablesUpdate {

@@ -144,3 +144,50 @@ async fn variables_stream_delivers_weights_and_ends_at_shutdown() {
     }
     s.shutdown().await;
 }
+
+/// Random and damaged batches thrown at the real service: each is refused with
+/// INVALID_ARGUMENT (or accepted when it happens to be valid), the learner keeps serving, and
+/// nothing malformed reaches the replay buffer.
+#[tokio::test]
+async fn random_batches_are_refused_and_the_learner_keeps_serving() {
+    use rand::{Rng, SeedableRng};
+    let s = start(None).await;
+    let mut c = s.client().await;
+    let id = c.register(register("fuzz", PROTOCOL_VERSION)).await.unwrap().into_inner().actor_id;
+    let cfg = s.state.config().clone();
+    let d = cfg.obs_dim();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
+    let mut refused = 0;
+    let mut inserted = 0u64;
+    for seq in 0..60u64 {
+        let mut m = dvnav_common::wire::batch_to_proto(&batch(&cfg, 2), id, seq);
+        match rng.random_range(0..6) {
+            0 => m.count = rng.random(),
+            1 => m.observations.truncate(rng.random_range(0..2 * d)),
+            2 => m.actions[rng.random_range(0..4)] = rng.random_range(-5.0..5.0),
+            3 => m.rewards[rng.random_range(0..2)] = f32::NEG_INFINITY,
+            4 => m.next_observations[rng.random_range(0..2 * d)] = f32::NAN,
+            _ => m.terminated = vec![true; rng.random_range(0..5)],
+        }
+        let claimed = m.count as u64;
+        let mut acks = c.transitions(tokio_stream::iter(vec![m])).await.unwrap().into_inner();
+        match acks.message().await {
+            Ok(Some(ack)) => inserted += ack.accepted as u64,
+            Err(e) => {
+                assert_eq!(e.code(), Code::InvalidArgument, "{e}");
+                refused += 1;
+                let _ = claimed;
+            }
+            Ok(None) => panic!("stream ended without an answer"),
+        }
+    }
+    assert!(refused > 40, "most damaged batches are refused ({refused})");
+    let st = c.status(StatusRequest {}).await.unwrap().into_inner();
+    assert_eq!(st.replay_size, inserted, "only valid batches reached the replay buffer");
+    assert_eq!(st.transitions_received, inserted);
+    // Still serving.
+    let ok = dvnav_common::wire::batch_to_proto(&batch(&cfg, 1), id, 1_000);
+    let mut acks = c.transitions(tokio_stream::iter(vec![ok])).await.unwrap().into_inner();
+    assert_eq!(acks.message().await.unwrap().unwrap().accepted, 1);
+    s.shutdown().await;
+}

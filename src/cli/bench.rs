@@ -47,10 +47,39 @@ enum BenchWhat {
         /// Updates timed.
         #[arg(long, default_value_t = 20)]
         updates: usize,
+        /// candle CPU threads (default: the config's `learner.threads`).
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Also time the same update in PyTorch (`scripts/bench_torch.py`, same batch and
+        /// threads) if Python with torch is found: $DVNAV_TORCH_PYTHON, ./.venv/bin/python3 or
+        /// python3. The Rust figure never depends on it.
+        #[arg(long)]
+        torch: bool,
         /// Print one JSON object.
         #[arg(long)]
         json: bool,
     },
+}
+
+/// Runs `scripts/bench_torch.py`; `Err` says why there is no PyTorch figure.
+fn torch_figure(batch: usize, threads: usize, updates: usize) -> Result<serde_json::Value, String> {
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/bench_torch.py");
+    let python = std::env::var("DVNAV_TORCH_PYTHON").ok().unwrap_or_else(|| {
+        let venv = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv/bin/python3");
+        if venv.exists() { venv.display().to_string() } else { "python3".into() }
+    });
+    let out = std::process::Command::new(&python)
+        .arg(&script)
+        .args(["--batch", &batch.to_string(), "--threads", &threads.to_string()])
+        .args(["--updates", &updates.to_string()])
+        .output()
+        .map_err(|e| format!("cannot run {python}: {e}"))?;
+    if !out.status.success() {
+        let err = String::from_utf8_lossy(&out.stderr);
+        let last = err.lines().last().unwrap_or("").to_string();
+        return Err(format!("{python} {}: {last}", script.display()));
+    }
+    serde_json::from_slice(&out.stdout).map_err(|e| format!("unreadable output: {e}"))
 }
 
 pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
@@ -82,12 +111,34 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
                 );
             }
         }
-        BenchWhat::Learner { config, batch, updates, json } => {
+        BenchWhat::Learner { config, batch, updates, threads, torch, json } => {
             let cfg = super::load_config(config.as_ref())?;
+            let threads = threads.unwrap_or(cfg.learner.threads).max(1);
+            // candle sizes its pool from this on first use, which comes after this point; no
+            // other thread runs yet.
+            unsafe { std::env::set_var("CANDLE_NUM_THREADS", threads.to_string()) };
             let r = dvnav_learner::bench::sac_updates(&cfg, batch, 3, updates)?;
+            let reference = torch.then(|| torch_figure(batch, threads, updates));
+            if let Some(Err(why)) = &reference {
+                eprintln!("PyTorch comparison skipped: {why}");
+            }
+            let torch_rate = reference
+                .as_ref()
+                .and_then(|r| r.as_ref().ok())
+                .and_then(|v| v["torch_sac_updates_per_s"].as_f64());
             if json {
-                println!("{}", serde_json::to_string(&r)?);
+                let mut v = serde_json::to_value(&r)?;
+                v["torch_sac_updates_per_s"] = serde_json::json!(torch_rate);
+                v["speed_ratio_vs_torch"] =
+                    serde_json::json!(torch_rate.map(|t| r.sac_updates_per_s / t));
+                println!("{v}");
             } else {
+                if let Some(t) = torch_rate {
+                    println!(
+                        "PyTorch, same network, batch and threads: {t:.2} updates/s; dvnav/PyTorch = {:.2}",
+                        r.sac_updates_per_s / t
+                    );
+                }
                 println!(
                     "SAC updates/s at batch {}: {:.2} ({:.1} ms/update), {} threads, {}; inference {:.2} ms (batch 1), {:.2} ms (batch 64)",
                     r.batch,
@@ -167,7 +218,7 @@ async fn bench_transport(transitions: usize, batch: usize) -> anyhow::Result<ser
     let addr = listener.local_addr()?;
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
     let server = tokio::spawn(
-        tonic::transport::Server::builder()
+        dvnav_learner::service::transport_server()
             .add_service(LearnerService::server(state.clone()))
             .serve_with_incoming_shutdown(
                 tokio_stream::wrappers::TcpListenerStream::new(listener),

@@ -19,38 +19,39 @@ fn box_corners(center: [f64; 2], half: [f64; 2], angle: f64) -> [[f64; 2]; 4] {
     })
 }
 
-/// Draws the floor, the four walls (just outside ±side/2) and every obstacle.
+/// Draws one convex shape (a compound's parts one by one).
+fn draw_shape(canvas: &mut Canvas, view: &WorldView, shape: &ObstacleSpec, color: Rgba) {
+    shape.for_each_primitive(&mut |o| match o {
+        ObstacleSpec::Box { center, half_extents, angle } => {
+            let pts: Vec<_> =
+                box_corners(*center, *half_extents, *angle).iter().map(|&p| view.px(p)).collect();
+            canvas.fill_polygon(&pts, color);
+        }
+        ObstacleSpec::Circle { center, radius } => {
+            let (x, y) = view.px(*center);
+            canvas.fill_circle(x, y, (*radius as f32) * view.scale(), color);
+        }
+        ObstacleSpec::Polygon { points } => {
+            let pts: Vec<_> = points.iter().map(|&p| view.px(p)).collect();
+            canvas.fill_polygon(&pts, color);
+        }
+        // for_each_primitive hands out no compounds.
+        ObstacleSpec::Compound { .. } => {}
+    });
+}
+
+/// Draws the floor (the room's square), every wall ([`RoomSpec::walls`]: the square's sides
+/// and any wall segments) and every obstacle.
 pub fn draw_room(canvas: &mut Canvas, view: &WorldView, room: &RoomSpec) {
     let h = 0.5 * room.side;
-    let t = room.wall_thickness;
-    let rect = |canvas: &mut Canvas, x0: f64, y0: f64, x1: f64, y1: f64, color: Rgba| {
-        let pts: Vec<(f32, f32)> =
-            [[x0, y0], [x1, y0], [x1, y1], [x0, y1]].iter().map(|&p| view.px(p)).collect();
-        canvas.fill_polygon(&pts, color);
-    };
-    rect(canvas, -h, -h, h, h, FLOOR);
-    rect(canvas, -h - t, h, h + t, h + t, WALL);
-    rect(canvas, -h - t, -h - t, h + t, -h, WALL);
-    rect(canvas, -h - t, -h, -h, h, WALL);
-    rect(canvas, h, -h, h + t, h, WALL);
+    let floor: Vec<(f32, f32)> =
+        [[-h, -h], [h, -h], [h, h], [-h, h]].iter().map(|&p| view.px(p)).collect();
+    canvas.fill_polygon(&floor, FLOOR);
+    for w in room.walls().iter() {
+        draw_shape(canvas, view, w, WALL);
+    }
     for o in &room.obstacles {
-        match o {
-            ObstacleSpec::Box { center, half_extents, angle } => {
-                let pts: Vec<_> = box_corners(*center, *half_extents, *angle)
-                    .iter()
-                    .map(|&p| view.px(p))
-                    .collect();
-                canvas.fill_polygon(&pts, OBSTACLE);
-            }
-            ObstacleSpec::Circle { center, radius } => {
-                let (x, y) = view.px(*center);
-                canvas.fill_circle(x, y, (*radius as f32) * view.scale(), OBSTACLE);
-            }
-            ObstacleSpec::Polygon { points } => {
-                let pts: Vec<_> = points.iter().map(|&p| view.px(p)).collect();
-                canvas.fill_polygon(&pts, OBSTACLE);
-            }
-        }
+        draw_shape(canvas, view, o, OBSTACLE);
     }
 }
 
@@ -62,14 +63,13 @@ mod tests {
     #[test]
     fn walls_floor_and_each_obstacle_shape_are_drawn_where_they_are() {
         let room = RoomSpec {
-            name: "t".into(),
-            side: 10.0,
             wall_thickness: 0.5,
             obstacles: vec![
                 ObstacleSpec::Box { center: [2.0, 2.0], half_extents: [1.0, 0.5], angle: 0.0 },
                 ObstacleSpec::Circle { center: [-2.0, -2.0], radius: 1.0 },
                 ObstacleSpec::Polygon { points: vec![[2.0, -3.0], [4.0, -3.0], [3.0, -1.0]] },
             ],
+            ..RoomSpec::empty("t", 10.0)
         };
         // 11 m shown on 110 px: 10 px per metre, origin at (55, 55).
         let view = WorldView { left: 0.0, top: 0.0, size: 110.0, center: [0.0, 0.0], side: 11.0 };

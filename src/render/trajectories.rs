@@ -227,7 +227,7 @@ mod tests {
     use crate::render::room::FLOOR;
 
     fn room() -> RoomSpec {
-        RoomSpec { name: "t".into(), side: 8.0, wall_thickness: 0.2, obstacles: vec![] }
+        RoomSpec::empty("t", 8.0)
     }
 
     fn panel(trajectories: Vec<Trajectory>) -> RoomPanel {

@@ -123,16 +123,13 @@ pub fn check_file(path: &Path) -> Result<FileCheck> {
         check.error(format!("no `{METADATA_NAME}` metadata record"));
     }
 
-    // Chunk CRCs are checked here (readers skip them by default): a flipped bit inside a
-    // compressed chunk can otherwise decode into plausible protobuf.
-    let options = mcap::read::Options::ValidateChunkCrcs.into();
-    let stream = match mcap::MessageStream::new_with_options(&bytes, options) {
-        Ok(s) => s,
-        Err(e) => {
-            check.error(format!("not an MCAP file: {e}"));
-            return Ok(check);
-        }
-    };
+    // Chunk CRCs are checked before a chunk is parsed (see `reader::messages`): a flipped bit
+    // inside a compressed chunk can otherwise decode into plausible protobuf, or worse.
+    let (readable, damage) = super::reader::sane_prefix(&bytes);
+    if let Some(d) = damage {
+        check.error(d);
+    }
+    let stream = super::reader::messages(readable);
     let mut schemas: HashMap<u16, Result<String, String>> = HashMap::new();
     let mut steps_of: HashMap<u64, u64> = HashMap::new();
     for message in stream {

@@ -32,7 +32,7 @@
 //! use dvnav_common::episode_log::{EpisodeLogger, EpisodeStart, LogMetadata, StepLog};
 //! use dvnav_common::sim::RoomSpec;
 //! # fn main() -> anyhow::Result<()> {
-//! let room = RoomSpec { name: "env0".into(), side: 8.0, wall_thickness: 0.2, obstacles: vec![] };
+//! let room = RoomSpec::empty("env0", 8.0);
 //! let lidar = LidarConfig::default();
 //! let mut log = EpisodeLogger::create("logs".as_ref(), "actor-0", LogMetadata::default(), 50)?;
 //! log.begin_episode(&EpisodeStart {

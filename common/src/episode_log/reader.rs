@@ -62,13 +62,11 @@ pub(crate) fn mcap_files(dir: &Path, out: &mut Vec<PathBuf>) -> Result<()> {
 /// writing leaves a file without a summary section, cut inside a chunk).
 fn read_file(path: &Path, out: &mut Vec<EpisodeRecord>) -> Result<()> {
     let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    let stream = match mcap::MessageStream::new(&bytes) {
-        Ok(s) => s,
-        Err(e) => {
-            tracing::warn!(file = %path.display(), error = %e, "not a readable MCAP file; skipped");
-            return Ok(());
-        }
-    };
+    let (readable, damage) = sane_prefix(&bytes);
+    if let Some(d) = damage {
+        tracing::warn!(file = %path.display(), "{d}; read up to it");
+    }
+    let stream = messages(readable);
     let before = out.len();
     for message in stream {
         let message = match message {
@@ -181,14 +179,7 @@ pub fn read_steps(
 ) -> Result<BTreeMap<u64, Vec<dvnav_proto::StepRecord>>> {
     let bytes = std::fs::read(file).with_context(|| format!("reading {}", file.display()))?;
     let mut out: BTreeMap<u64, Vec<dvnav_proto::StepRecord>> = BTreeMap::new();
-    let stream = match mcap::MessageStream::new(&bytes) {
-        Ok(s) => s,
-        Err(e) => {
-            tracing::warn!(file = %file.display(), error = %e, "not a readable MCAP file; skipped");
-            return Ok(out);
-        }
-    };
-    for message in stream {
+    for message in messages(sane_prefix(&bytes).0) {
         let Ok(message) = message else { break };
         if message.channel.topic != TOPIC_STEP {
             continue;
@@ -309,4 +300,51 @@ pub fn episode_detail(record: &EpisodeRecord, steps: &[dvnav_proto::StepRecord])
         end_time_s: s.end_time_ns as f64 * 1e-9,
         file: record.file.clone(),
     }
+}
+
+/// Largest uncompressed chunk a reader accepts (bytes). The logger's chunks are ~2 MiB; the
+/// `mcap` crate's streaming reader reserves a chunk's claimed uncompressed size up front, so a
+/// damaged size field (a flipped bit) would abort the process on allocation failure.
+const MAX_CHUNK_BYTES: u64 = 256 * 1024 * 1024;
+
+/// The prefix of an MCAP file up to its first chunk that claims an implausible uncompressed
+/// size, and why it stops there. Walks the record framing only (opcode, length); stops quietly
+/// at a truncated record, which the readers report themselves.
+pub(crate) fn sane_prefix(bytes: &[u8]) -> (&[u8], Option<String>) {
+    const MAGIC: usize = 8;
+    const CHUNK: u8 = 0x06;
+    let u64_at = |at: usize| -> Option<u64> {
+        Some(u64::from_le_bytes(bytes.get(at..at + 8)?.try_into().ok()?))
+    };
+    let mut at = MAGIC;
+    while let (Some(&op), Some(len)) = (bytes.get(at), u64_at(at + 1)) {
+        let body = at + 9;
+        // Chunk body: start time, end time, uncompressed size, …
+        if op == CHUNK
+            && let Some(size) = u64_at(body + 16)
+            && size > MAX_CHUNK_BYTES
+        {
+            let why = format!("chunk at byte {at} claims {size} bytes uncompressed (damaged)");
+            return (&bytes[..at], Some(why));
+        }
+        match usize::try_from(len).ok().and_then(|l| body.checked_add(l)) {
+            Some(next) if next <= bytes.len() => at = next,
+            _ => break,
+        }
+    }
+    (bytes, None)
+}
+
+/// The messages of an MCAP file in file order, read defensively: a chunk's CRC is checked
+/// before its records are parsed, and no record or chunk may claim more than
+/// [`MAX_CHUNK_BYTES`]. `mcap::MessageStream` checks CRCs only after it has parsed a chunk's
+/// records, so a flipped bit in compressed data could make it reserve a record length read from
+/// garbage and abort the process.
+pub(crate) fn messages(
+    bytes: &[u8],
+) -> impl Iterator<Item = mcap::McapResult<mcap::Message<'static>>> + '_ {
+    let options = mcap::sans_io::LinearReaderOptions::default()
+        .with_prevalidate_chunk_crcs(true)
+        .with_record_length_limit(MAX_CHUNK_BYTES as usize);
+    mcap::io::MessageReader::new_with_options(std::io::Cursor::new(bytes), options)
 }

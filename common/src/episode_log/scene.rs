@@ -17,7 +17,7 @@ use foxglove::messages::{
 };
 
 use super::EpisodeStart;
-use crate::sim::{ObstacleSpec, Point};
+use crate::sim::{ObstacleSpec, Point, RoomSpec};
 
 /// Frame of the room (parent of `/tf`).
 pub(crate) const WORLD_FRAME: &str = "world";
@@ -73,25 +73,23 @@ fn entity(id: &str, frame: &str, timestamp: Timestamp) -> SceneEntity {
     }
 }
 
-/// The four walls as boxes just outside ±side/2; the top and bottom walls also cover the corners.
-fn walls(side: f64, thickness: f64, timestamp: Timestamp) -> SceneEntity {
+/// Every wall of the room ([`RoomSpec::walls`]: the square's four sides and any wall
+/// segments) as a box.
+fn walls(room: &RoomSpec, timestamp: Timestamp) -> SceneEntity {
     let h = WALL_HEIGHT;
-    let off = 0.5 * (side + thickness);
-    let long = side + 2.0 * thickness;
-    let cube = |x: f64, y: f64, sx: f64, sy: f64| CubePrimitive {
-        pose: Some(pose(x, y, 0.5 * h, 0.0)),
-        size: size(sx, sy, h),
-        color: Some(WALL_COLOR),
-    };
-    SceneEntity {
-        cubes: vec![
-            cube(0.0, off, long, thickness),
-            cube(0.0, -off, long, thickness),
-            cube(off, 0.0, thickness, side),
-            cube(-off, 0.0, thickness, side),
-        ],
-        ..entity("walls", WORLD_FRAME, timestamp)
+    let mut cubes = Vec::new();
+    for w in room.walls().iter() {
+        w.for_each_primitive(&mut |p| {
+            if let ObstacleSpec::Box { center, half_extents, angle } = p {
+                cubes.push(CubePrimitive {
+                    pose: Some(pose(center[0], center[1], 0.5 * h, *angle)),
+                    size: size(2.0 * half_extents[0], 2.0 * half_extents[1], h),
+                    color: Some(WALL_COLOR),
+                });
+            }
+        });
     }
+    SceneEntity { cubes, ..entity("walls", WORLD_FRAME, timestamp) }
 }
 
 /// A convex polygon (counter-clockwise) as a closed prism: a fan-triangulated top face and two
@@ -118,11 +116,16 @@ fn prism(points: &[Point], h: f64) -> TriangleListPrimitive {
     }
 }
 
-/// Boxes as cubes, discs as cylinders, convex polygons as triangle-list prisms.
+/// Boxes as cubes, discs as cylinders, convex polygons as triangle-list prisms; a compound
+/// obstacle as its parts.
 fn obstacles(list: &[ObstacleSpec], timestamp: Timestamp) -> SceneEntity {
     let h = OBSTACLE_HEIGHT;
     let mut e = entity("obstacles", WORLD_FRAME, timestamp);
+    let mut parts = Vec::new();
     for o in list {
+        o.for_each_primitive(&mut |p| parts.push(p.clone()));
+    }
+    for o in &parts {
         match o {
             ObstacleSpec::Box { center, half_extents, angle } => e.cubes.push(CubePrimitive {
                 pose: Some(pose(center[0], center[1], 0.5 * h, *angle)),
@@ -137,6 +140,8 @@ fn obstacles(list: &[ObstacleSpec], timestamp: Timestamp) -> SceneEntity {
                 color: Some(OBSTACLE_COLOR),
             }),
             ObstacleSpec::Polygon { points } => e.triangles.push(prism(points, h)),
+            // Parts are never compounds (for_each_primitive flattens them).
+            ObstacleSpec::Compound { .. } => {}
         }
     }
     e
@@ -220,7 +225,7 @@ fn goal(goal: Point, timestamp: Timestamp) -> SceneEntity {
 /// and robot (and the scaled robot when μ ≠ 1).
 pub(crate) fn episode_scene(ep: &EpisodeStart<'_>, timestamp: Timestamp) -> SceneUpdate {
     let mut entities = vec![
-        walls(ep.room.side, ep.room.wall_thickness, timestamp),
+        walls(ep.room, timestamp),
         obstacles(&ep.room.obstacles, timestamp),
         goal(ep.goal, timestamp),
         robot(ep.robot_radius, timestamp),

@@ -16,9 +16,6 @@ const RADIUS: f64 = 0.25;
 
 fn room() -> RoomSpec {
     RoomSpec {
-        name: "test".into(),
-        side: 6.0,
-        wall_thickness: 0.2,
         obstacles: vec![
             ObstacleSpec::Box { center: [1.0, 1.0], half_extents: [0.3, 0.2], angle: 0.5 },
             ObstacleSpec::Circle { center: [-1.5, 0.5], radius: 0.4 },
@@ -26,6 +23,7 @@ fn room() -> RoomSpec {
                 points: vec![[0.0, -2.0], [1.0, -2.0], [1.2, -1.2], [0.2, -1.0]],
             },
         ],
+        ..RoomSpec::empty("test", 6.0)
     }
 }
 
@@ -790,6 +788,32 @@ fn check_file_decodes_everything_and_tells_finished_from_cut_and_damaged() {
     std::fs::write(&bad, &damaged).unwrap();
     let c = check_file(&bad).unwrap();
     assert!(!c.is_ok(), "{c:?}");
+
+    // A damaged chunk size field must not abort the process (the mcap crate reserves the
+    // claimed size): every single-byte flip in the first two chunks' headers reads or reports.
+    for at in (0..(ends[1] as usize).min(bytes.len())).step_by(7) {
+        let mut d = bytes.clone();
+        d[at] ^= 0xff;
+        std::fs::write(&bad, &d).unwrap();
+        check_file(&bad).unwrap();
+        read_episodes(&bad).unwrap();
+    }
+    // A chunk claiming 2^60 bytes: reading stops before it, with an error, instead of
+    // aborting on the allocation.
+    let mut huge = bytes.clone();
+    let mut at = 8;
+    while huge[at] != 0x06 {
+        at += 9 + u64::from_le_bytes(huge[at + 1..at + 9].try_into().unwrap()) as usize;
+    }
+    huge[at + 9 + 16..at + 9 + 24].copy_from_slice(&(1u64 << 60).to_le_bytes());
+    let (prefix, why) = super::reader::sane_prefix(&huge);
+    assert_eq!(prefix.len(), at);
+    assert!(why.unwrap().contains("uncompressed"));
+    assert_eq!(super::reader::sane_prefix(&bytes).0.len(), bytes.len());
+    std::fs::write(&bad, &huge).unwrap();
+    let c = check_file(&bad).unwrap();
+    assert!(!c.is_ok() && c.complete_episodes == 0, "{c:?}");
+    assert!(read_episodes(&bad).unwrap().is_empty());
 
     // Not MCAP at all.
     let junk = dir.path().join("junk.mcap");

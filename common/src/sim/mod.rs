@@ -1,21 +1,29 @@
 //! The simulator: rapier2d rooms, the robot, the LiDAR, rewards and termination.
 //!
-//! - [`RoomSpec`] / [`ObstacleSpec`]: rooms as plain data (serde), including the training
-//!   layout [`RoomSpec::training`].
-//! - [`Room`]: one room's static geometry behind rapier2d's query pipeline (ray casts, overlap
+//! - [`RoomSpec`] / [`ObstacleSpec`]: rooms as plain data (serde): walls, obstacles (boxes,
+//!   circles, convex polygons, compounds), spawn regions, evaluation [`Route`]s and
+//!   [`TimedObstacle`]s.
+//! - [`room_file`]: the TOML room file format, its loader (errors name the line and the
+//!   reason) and the built-in rooms of `rooms/` (Env_0..Env_3, `sac_ri`, `gate`, `dynamic`),
+//!   embedded in the binary.
+//! - [`Footprint`]: the robot's shape (a union of convex parts, LiDAR at the origin), also a
+//!   small TOML file.
+//! - [`Room`]: one room's geometry behind rapier2d's query pipeline (ray casts, overlap
 //!   tests); built once and shared as `Arc<Room>`.
 //! - [`Lidar`]: the planar range finder at the robot's axle centre. Scans are cast shape by
 //!   shape against the room's flat geometry (`caster.rs`), exact in `f64`; rapier's per-beam
 //!   ray casts remain as the reference ([`Lidar::scan_reference`]).
-//! - [`NavEnv`]: one episode at a time for the circular meta robot with unicycle kinematics,
-//!   the paper's reward, and the flat observation of [`crate::obs`].
+//! - [`NavEnv`]: one episode at a time for a robot of any footprint (the circular meta robot
+//!   by default) with unicycle kinematics, the paper's reward, timed obstacles, and the flat
+//!   observation of [`crate::obs`].
 //! - [`VecEnv`]: many [`NavEnv`]s stepped in parallel with rayon.
 //!
 //! There is no dynamics here: the robot is kinematic (velocity commands are followed exactly),
 //! so "physics" is collision detection and ray casting against static shapes. Motion is
-//! integrated in closed form and checked for contact at sub-steps no longer than
-//! `EnvConfig::collision_substep`, so the robot cannot pass through a thin wall however large
-//! the control period is.
+//! integrated in closed form and checked for contact at sub-steps so close that no point of the
+//! footprint moves more than `EnvConfig::collision_substep` between two checks (turning counts:
+//! a long robot turning in place sweeps its corners), so the robot cannot pass through a thin
+//! wall however large the control period is.
 //!
 //! ```
 //! use dvnav_common::config::EnvConfig;
@@ -30,15 +38,21 @@
 
 mod caster;
 mod env;
+mod footprint;
 mod lidar;
 mod room;
+pub mod room_file;
 pub mod spec;
 mod vec_env;
 
 pub use env::{NavEnv, StepOutcome};
+pub use footprint::Footprint;
 pub use lidar::Lidar;
 pub use room::Room;
-pub use spec::{ObstacleSpec, Point, RoomSpec};
+pub use room_file::SpecFileError;
+pub use spec::{
+    ObstacleSpec, Point, RoomSpec, Route, SpawnRegion, TimedObstacle, WallSegment,
+};
 pub use vec_env::VecEnv;
 
 /// A planar pose: position (m) in the room frame and heading `yaw` (rad, counter-clockwise

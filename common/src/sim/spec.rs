@@ -1,13 +1,14 @@
-//! Rooms as data: the walls and obstacles of a room, in metres, world frame (x right, y up,
-//! origin at the room's centre). A [`RoomSpec`] is plain serde data so rooms can be written in
-//! files; [`super::Room`] turns one into rapier2d colliders.
+//! Rooms as data: the walls, obstacles, spawn regions, goal routes and timed obstacles of a room,
+//! in metres, world frame (x right, y up, origin at the room's centre). A [`RoomSpec`] is plain
+//! serde data; [`super::room_file`] reads it from the TOML room files users write (and the
+//! built-in rooms in `rooms/`), and [`super::Room`] turns one into geometry.
 
 use serde::{Deserialize, Serialize};
 
 /// A 2-D point or vector in metres.
 pub type Point = [f64; 2];
 
-/// One static shape of a room.
+/// One shape of a room (or of a robot's footprint, see [`super::Footprint`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "shape", rename_all = "snake_case", deny_unknown_fields)]
 pub enum ObstacleSpec {
@@ -33,20 +34,129 @@ pub enum ObstacleSpec {
         /// Vertices (m).
         points: Vec<Point>,
     },
+    /// A union of boxes, circles and polygons placed relative to the anchor `at`: one obstacle
+    /// made of several convex parts (an L, a U-shaped trap, a table and its legs). When a room
+    /// layout is instanced at another side (see [`super::room_file`]) the anchor moves and the
+    /// parts keep their size and their offsets. Parts may not be compounds themselves.
+    Compound {
+        /// Anchor (m); the parts' coordinates are relative to it.
+        #[serde(default)]
+        at: Point,
+        /// The parts, relative to `at`.
+        parts: Vec<ObstacleSpec>,
+    },
 }
 
-/// A square room: four walls of side `side` (inner size) and the obstacles inside.
+/// A straight wall: a box `thickness` thick centred on the segment from `from` to `to`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WallSegment {
+    /// One end of the wall's centre line (m).
+    pub from: Point,
+    /// The other end (m).
+    pub to: Point,
+    /// Thickness (m); the room's `wall_thickness` when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub thickness: Option<f64>,
+}
+
+/// An axis-aligned rectangle where episode starts and/or goals are drawn (the free part of it:
+/// the sampler still keeps the robot's clearance from every shape).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpawnRegion {
+    /// Name, unique in the room.
+    pub name: String,
+    /// Lower-left corner (m).
+    pub min: Point,
+    /// Upper-right corner (m).
+    pub max: Point,
+    /// Starts are drawn here (default true).
+    #[serde(default = "yes")]
+    pub starts: bool,
+    /// Goals are drawn here (default true).
+    #[serde(default = "yes")]
+    pub goals: bool,
+}
+
+/// A fixed evaluation route: a start pose and goals visited in order (the next goal is set
+/// when the previous one is reached).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Route {
+    /// Name, unique in the room (`eval` for the evaluation route of design §4).
+    pub name: String,
+    /// Start position (m).
+    pub start: Point,
+    /// Start heading (degrees, counter-clockwise from +x).
+    #[serde(default)]
+    pub heading_deg: f64,
+    /// Goals in the order they are visited (m).
+    pub goals: Vec<Point>,
+}
+
+impl Route {
+    /// The start pose (heading in radians).
+    pub fn start_pose(&self) -> super::Pose2 {
+        super::Pose2::new(self.start[0], self.start[1], self.heading_deg.to_radians())
+    }
+}
+
+/// An obstacle that appears mid-episode (the dynamic scenario): absent before, present from
+/// the moment `at_step` control steps have elapsed (simulation time `at_step · dt`) until the
+/// episode ends. It is in the scan observed after step `at_step`, and it blocks motion from
+/// then on; a robot it appears on collides with it at that step.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimedObstacle {
+    /// Control steps after the reset at which the obstacle appears (0: present from the start).
+    pub at_step: u32,
+    /// Its shape.
+    pub obstacle: ObstacleSpec,
+}
+
+fn yes() -> bool {
+    true
+}
+
+fn is_true(b: &bool) -> bool {
+    *b
+}
+
+/// A room: walls, static obstacles, and what episodes in it use (spawn regions, routes, timed
+/// obstacles). By default the walls are the four sides of a `side` x `side` square around the
+/// origin; [`RoomSpec::square_walls`] `= false` with [`RoomSpec::wall_segments`] makes rooms of
+/// any other outline (the square then only bounds the drawing and the sampling).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RoomSpec {
     /// Name, e.g. `env0`.
     pub name: String,
-    /// Inner side length of the square room (m); walls lie just outside ±side/2.
+    /// Inner side length of the square room (m); walls lie just outside ±side/2. With
+    /// `square_walls = false`, the square everything must lie in.
     pub side: f64,
     /// Wall thickness (m).
     pub wall_thickness: f64,
-    /// Obstacles inside the room.
+    /// Static obstacles inside the room.
     pub obstacles: Vec<ObstacleSpec>,
+    /// One line of what the room is for (shown by `dvnav rooms list`).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub description: String,
+    /// Whether the four walls of the square are there (default true).
+    #[serde(default = "yes", skip_serializing_if = "is_true")]
+    pub square_walls: bool,
+    /// Further walls, e.g. a wall with a gate across the room.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub wall_segments: Vec<WallSegment>,
+    /// Where starts and goals are drawn; none: anywhere in the square.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub spawn_regions: Vec<SpawnRegion>,
+    /// Named evaluation routes.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub routes: Vec<Route>,
+    /// Obstacles that appear during an episode.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub timed_obstacles: Vec<TimedObstacle>,
 }
 
 /// Side (m) of the room the training layout is defined for (Env_0).
@@ -56,74 +166,13 @@ pub const TRAINING_BASE_SIDE: f64 = 8.0;
 /// what a LiDAR beam could see through a wall, which it never can.
 pub const DEFAULT_WALL_THICKNESS: f64 = 0.2;
 
-/// One obstacle group of the training layout: parts given relative to an anchor. When the room
-/// shrinks, the anchor moves towards the centre (its coordinates scale by side/8) while the
-/// parts keep their size and their offsets, so a U-shaped trap stays one U of the same size.
-struct Group {
-    /// Anchor in the 8 m room (m).
-    anchor: Point,
-    /// Parts, centred relative to the anchor (m).
-    parts: Vec<ObstacleSpec>,
-}
-
-/// The training layout (design §2), defined for the 8 m room.
-///
-/// Eight groups, eleven shapes, on a ring around a free centre (the evaluation start):
-///
-/// ```text
-///   NW triangle      N  U-trap (opens south)   NE circle r 0.30
-///   W  rotated box         (origin)            E  pentagon
-///   SW diamond       S  circle r 0.35          SE L-corner trap (opens north-west)
-/// ```
-///
-/// The anchors are chosen so that at side 5 (the most crowded room) every gap between two
-/// groups, and between a group and a wall, is at least 0.6 m, and the origin has more than 1 m
-/// of clearance; gaps only grow in the larger rooms. The U pocket is 0.8 m wide and 0.7 m deep,
-/// so the 0.4 m robot can drive into it and has to back out: a local minimum for a goal behind
-/// it. The L corner is a shallower trap of the same kind.
-fn training_groups() -> Vec<Group> {
-    use ObstacleSpec::{Box, Circle, Polygon};
-    let regular = |n: usize, r: f64, phase: f64| -> ObstacleSpec {
-        let points = (0..n)
-            .map(|k| {
-                let a = phase + std::f64::consts::TAU * k as f64 / n as f64;
-                [r * a.cos(), r * a.sin()]
-            })
-            .collect();
-        Polygon { points }
-    };
-    let bx = |center: Point, half_extents: Point, angle: f64| Box { center, half_extents, angle };
-    vec![
-        // N: U-shaped pocket opening towards the centre (−y): back bar and two arms.
-        Group {
-            anchor: [0.0, 2.24],
-            parts: vec![
-                bx([0.0, 0.35], [0.5, 0.05], 0.0),
-                bx([-0.45, 0.0], [0.05, 0.4], 0.0),
-                bx([0.45, 0.0], [0.05, 0.4], 0.0),
-            ],
-        },
-        // SE: L-shaped corner whose concave side faces the centre.
-        Group {
-            anchor: [2.4, -2.4],
-            parts: vec![bx([0.0, -0.3], [0.35, 0.05], 0.0), bx([0.3, 0.0], [0.05, 0.35], 0.0)],
-        },
-        // S: circle.
-        Group { anchor: [0.0, -2.4], parts: vec![Circle { center: [0.0, 0.0], radius: 0.35 }] },
-        // NE: circle.
-        Group { anchor: [2.4, 2.4], parts: vec![Circle { center: [0.0, 0.0], radius: 0.3 }] },
-        // E: regular pentagon, circumradius 0.35.
-        Group { anchor: [2.4, 0.0], parts: vec![regular(5, 0.35, 0.3)] },
-        // NW: triangle, circumradius 0.35.
-        Group { anchor: [-2.4, 2.4], parts: vec![regular(3, 0.35, std::f64::consts::FRAC_PI_2)] },
-        // W: rotated rectangle 0.7 m x 0.4 m.
-        Group { anchor: [-2.32, 0.0], parts: vec![bx([0.0, 0.0], [0.35, 0.2], 0.4)] },
-        // SW: square turned 45° (a diamond).
-        Group {
-            anchor: [-2.4, -2.4],
-            parts: vec![bx([0.0, 0.0], [0.25, 0.25], std::f64::consts::FRAC_PI_4)],
-        },
-    ]
+/// Corners of a box, counter-clockwise.
+pub fn box_corners(center: Point, half_extents: Point, angle: f64) -> [Point; 4] {
+    let (s, c) = angle.sin_cos();
+    [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)].map(|(sx, sy)| {
+        let (lx, ly) = (sx * half_extents[0], sy * half_extents[1]);
+        [center[0] + c * lx - s * ly, center[1] + s * lx + c * ly]
+    })
 }
 
 impl ObstacleSpec {
@@ -142,11 +191,113 @@ impl ObstacleSpec {
             ObstacleSpec::Polygon { points } => {
                 ObstacleSpec::Polygon { points: points.iter().map(add).collect() }
             }
+            ObstacleSpec::Compound { at, parts } => {
+                ObstacleSpec::Compound { at: add(at), parts: parts.clone() }
+            }
+        }
+    }
+
+    /// The point that moves when a layout is instanced at another side: a box's or circle's
+    /// centre, a polygon's vertex mean, a compound's anchor.
+    pub fn anchor(&self) -> Point {
+        match self {
+            ObstacleSpec::Box { center, .. } | ObstacleSpec::Circle { center, .. } => *center,
+            ObstacleSpec::Polygon { points } => {
+                let n = points.len().max(1) as f64;
+                points.iter().fold([0.0, 0.0], |m, p| [m[0] + p[0] / n, m[1] + p[1] / n])
+            }
+            ObstacleSpec::Compound { at, .. } => *at,
+        }
+    }
+
+    /// Calls `f` with every convex part in room coordinates: the shape itself, or a compound's
+    /// parts moved to its anchor.
+    pub fn for_each_primitive(&self, f: &mut impl FnMut(&ObstacleSpec)) {
+        match self {
+            ObstacleSpec::Compound { at, parts } => {
+                for p in parts {
+                    p.translated(*at).for_each_primitive(f);
+                }
+            }
+            other => f(other),
+        }
+    }
+
+    /// The convex parts in room coordinates (see [`ObstacleSpec::for_each_primitive`]).
+    pub fn primitives(&self) -> Vec<ObstacleSpec> {
+        let mut out = Vec::new();
+        self.for_each_primitive(&mut |p| out.push(p.clone()));
+        out
+    }
+
+    /// Vertices of a box or polygon, counter-clockwise; `None` for a circle or a compound.
+    pub fn vertices(&self) -> Option<Vec<Point>> {
+        match self {
+            ObstacleSpec::Box { center, half_extents, angle } => {
+                Some(box_corners(*center, *half_extents, *angle).to_vec())
+            }
+            ObstacleSpec::Polygon { points } => Some(points.clone()),
+            _ => None,
+        }
+    }
+
+    /// Axis-aligned bounding box `[min, max]` (m).
+    pub fn aabb(&self) -> [Point; 2] {
+        let mut lo = [f64::INFINITY; 2];
+        let mut hi = [f64::NEG_INFINITY; 2];
+        self.for_each_primitive(&mut |p| {
+            let (plo, phi) = match p {
+                ObstacleSpec::Circle { center, radius } => (
+                    [center[0] - radius, center[1] - radius],
+                    [center[0] + radius, center[1] + radius],
+                ),
+                other => {
+                    let v = other.vertices().unwrap_or_default();
+                    let min = |k: usize| v.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min);
+                    let max = |k: usize| v.iter().map(|p| p[k]).fold(f64::NEG_INFINITY, f64::max);
+                    ([min(0), min(1)], [max(0), max(1)])
+                }
+            };
+            for k in 0..2 {
+                lo[k] = lo[k].min(plo[k]);
+                hi[k] = hi[k].max(phi[k]);
+            }
+        });
+        [lo, hi]
+    }
+
+    /// Largest distance (m) of any point of the shape from `p`.
+    pub fn max_distance_from(&self, p: Point) -> f64 {
+        let mut d: f64 = 0.0;
+        self.for_each_primitive(&mut |s| {
+            let far = match s {
+                ObstacleSpec::Circle { center, radius } => {
+                    (center[0] - p[0]).hypot(center[1] - p[1]) + radius
+                }
+                other => other
+                    .vertices()
+                    .unwrap_or_default()
+                    .iter()
+                    .map(|v| (v[0] - p[0]).hypot(v[1] - p[1]))
+                    .fold(0.0, f64::max),
+            };
+            d = d.max(far);
+        });
+        d
+    }
+
+    /// Short name of the shape kind, as written in files.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            ObstacleSpec::Box { .. } => "box",
+            ObstacleSpec::Circle { .. } => "circle",
+            ObstacleSpec::Polygon { .. } => "polygon",
+            ObstacleSpec::Compound { .. } => "compound",
         }
     }
 
     /// Checks that the shape is finite and non-degenerate; polygons must be convex and
-    /// counter-clockwise.
+    /// counter-clockwise; compounds need at least one part and no compound parts.
     pub fn validate(&self) -> anyhow::Result<()> {
         let finite = |p: &Point| p[0].is_finite() && p[1].is_finite();
         match self {
@@ -165,18 +316,56 @@ impl ObstacleSpec {
                 );
             }
             ObstacleSpec::Polygon { points } => {
-                anyhow::ensure!(points.len() >= 3, "polygon: needs at least 3 points");
+                anyhow::ensure!(
+                    points.len() >= 3,
+                    "polygon: needs at least 3 points, got {}",
+                    points.len()
+                );
                 anyhow::ensure!(points.iter().all(finite), "polygon: non-finite point");
                 let n = points.len();
-                for i in 0..n {
-                    let (a, b, c) = (points[i], points[(i + 1) % n], points[(i + 2) % n]);
-                    let cross = (b[0] - a[0]) * (c[1] - b[1]) - (b[1] - a[1]) * (c[0] - b[0]);
+                let turns: Vec<f64> = (0..n)
+                    .map(|i| {
+                        let (a, b, c) = (points[i], points[(i + 1) % n], points[(i + 2) % n]);
+                        (b[0] - a[0]) * (c[1] - b[1]) - (b[1] - a[1]) * (c[0] - b[0])
+                    })
+                    .collect();
+                if let Some(i) = turns.iter().position(|&t| t <= 0.0) {
+                    let clockwise = turns.iter().all(|&t| t < 0.0);
                     anyhow::ensure!(
-                        cross > 0.0,
+                        !clockwise,
+                        "polygon: the points run clockwise; list them counter-clockwise"
+                    );
+                    anyhow::bail!(
                         "polygon: points must form a convex polygon in counter-clockwise order \
-                         (turn at point {} is not to the left)",
+                         (the turn at point {} is not to the left: non-convex, or a repeated or \
+                         collinear point)",
                         (i + 1) % n
                     );
+                }
+                // Convex turns everywhere but winding more than once (a star) is not convex.
+                let winding: f64 = (0..n)
+                    .map(|i| {
+                        let (a, b, c) = (points[i], points[(i + 1) % n], points[(i + 2) % n]);
+                        let u = [b[0] - a[0], b[1] - a[1]];
+                        let v = [c[0] - b[0], c[1] - b[1]];
+                        (u[0] * v[1] - u[1] * v[0]).atan2(u[0] * v[0] + u[1] * v[1])
+                    })
+                    .sum();
+                anyhow::ensure!(
+                    (winding - std::f64::consts::TAU).abs() < 1e-6,
+                    "polygon: the points wind around more than once (self-intersecting), \
+                     so the polygon is not convex"
+                );
+            }
+            ObstacleSpec::Compound { at, parts } => {
+                anyhow::ensure!(finite(at), "compound: non-finite anchor");
+                anyhow::ensure!(!parts.is_empty(), "compound: needs at least one part");
+                for (i, p) in parts.iter().enumerate() {
+                    anyhow::ensure!(
+                        !matches!(p, ObstacleSpec::Compound { .. }),
+                        "compound: part {i} is a compound; list its parts directly"
+                    );
+                    p.validate().map_err(|e| anyhow::anyhow!("compound part {i}: {e}"))?;
                 }
             }
         }
@@ -184,47 +373,46 @@ impl ObstacleSpec {
     }
 }
 
+impl WallSegment {
+    /// The wall as a box, `default_thickness` thick unless the segment sets its own.
+    pub fn to_box(&self, default_thickness: f64) -> ObstacleSpec {
+        let t = self.thickness.unwrap_or(default_thickness);
+        let (dx, dy) = (self.to[0] - self.from[0], self.to[1] - self.from[1]);
+        ObstacleSpec::Box {
+            center: [0.5 * (self.from[0] + self.to[0]), 0.5 * (self.from[1] + self.to[1])],
+            half_extents: [0.5 * dx.hypot(dy), 0.5 * t],
+            angle: dy.atan2(dx),
+        }
+    }
+}
+
 impl RoomSpec {
-    /// A room with walls and no obstacles.
+    /// A square room with walls and no obstacles.
     pub fn empty(name: &str, side: f64) -> RoomSpec {
         RoomSpec {
             name: name.to_string(),
             side,
             wall_thickness: DEFAULT_WALL_THICKNESS,
             obstacles: Vec::new(),
+            description: String::new(),
+            square_walls: true,
+            wall_segments: Vec::new(),
+            spawn_regions: Vec::new(),
+            routes: Vec::new(),
+            timed_obstacles: Vec::new(),
         }
     }
 
-    /// The training layout (see the `training_groups` docs in the source) instanced at `side`
-    /// metres: obstacle positions scale by `side / 8`, obstacle sizes stay the same, so
-    /// smaller rooms are more crowded. Env_0..Env_3 are sides 8, 7, 6 and 5; the layout is
+    /// The training layout (`rooms/training.toml`) instanced at `side` metres: obstacle
+    /// positions scale by `side / 8`, obstacle sizes stay the same, so smaller rooms are more
+    /// crowded. Env_0..Env_3 are sides 8, 7, 6 and 5 (`Room::builtin("env0")`, …); the layout is
     /// checked to leave ≥ 0.6 m gaps down to side 5.
     pub fn training(name: &str, side: f64) -> RoomSpec {
-        let s = side / TRAINING_BASE_SIDE;
-        let obstacles = training_groups()
-            .into_iter()
-            .flat_map(|g| {
-                let anchor = [g.anchor[0] * s, g.anchor[1] * s];
-                g.parts.into_iter().map(move |p| p.translated(anchor))
-            })
-            .collect();
-        RoomSpec { obstacles, ..RoomSpec::empty(name, side) }
+        super::room_file::training_layout(name, side)
     }
 
-    /// The training layout's obstacles at `side`, grouped (parts of one trap together).
-    #[cfg(test)]
-    pub(crate) fn training_grouped(side: f64) -> Vec<Vec<ObstacleSpec>> {
-        let s = side / TRAINING_BASE_SIDE;
-        training_groups()
-            .into_iter()
-            .map(|g| {
-                let anchor = [g.anchor[0] * s, g.anchor[1] * s];
-                g.parts.iter().map(|p| p.translated(anchor)).collect()
-            })
-            .collect()
-    }
-
-    /// Checks the side, the wall thickness and every obstacle.
+    /// Checks the side, the wall thickness and every shape (not where they lie: see
+    /// [`super::room_file`] for the checks against the room's free space).
     pub fn validate(&self) -> anyhow::Result<()> {
         anyhow::ensure!(
             self.side.is_finite() && self.side > 0.0,
@@ -241,25 +429,82 @@ impl RoomSpec {
         for (i, o) in self.obstacles.iter().enumerate() {
             o.validate().map_err(|e| anyhow::anyhow!("room `{}`: obstacle {i}: {e}", self.name))?;
         }
+        for (i, w) in self.wall_segments.iter().enumerate() {
+            let ok = w.from.iter().chain(&w.to).all(|v| v.is_finite())
+                && w.from != w.to
+                && w.thickness.is_none_or(|t| t.is_finite() && t > 0.0);
+            anyhow::ensure!(
+                ok,
+                "room `{}`: wall segment {i}: needs two distinct finite ends and a positive \
+                 thickness",
+                self.name
+            );
+        }
+        for (i, t) in self.timed_obstacles.iter().enumerate() {
+            t.obstacle
+                .validate()
+                .map_err(|e| anyhow::anyhow!("room `{}`: timed obstacle {i}: {e}", self.name))?;
+        }
+        anyhow::ensure!(
+            self.square_walls || !self.spawn_regions.is_empty(),
+            "room `{}`: a room without square walls needs spawn regions (the sampler cannot \
+             tell inside from outside of other outlines)",
+            self.name
+        );
         Ok(())
     }
 
-    /// The four walls as boxes just outside ±side/2 (the inner faces lie on the room's edge).
-    pub fn walls(&self) -> [ObstacleSpec; 4] {
-        let h = self.side / 2.0;
-        let t = self.wall_thickness / 2.0;
-        let long = [h + self.wall_thickness, t];
-        let tall = [t, h + self.wall_thickness];
-        let bx = |center: Point, half_extents: Point| ObstacleSpec::Box {
-            center,
-            half_extents,
-            angle: 0.0,
-        };
-        [
-            bx([0.0, h + t], long),
-            bx([0.0, -h - t], long),
-            bx([h + t, 0.0], tall),
-            bx([-h - t, 0.0], tall),
-        ]
+    /// Every wall as a shape: the four sides of the square (boxes just outside ±side/2, inner
+    /// faces on the room's edge) unless `square_walls` is false, then the wall segments.
+    pub fn walls(&self) -> Vec<ObstacleSpec> {
+        let mut out = Vec::with_capacity(4 + self.wall_segments.len());
+        if self.square_walls {
+            let h = self.side / 2.0;
+            let t = self.wall_thickness / 2.0;
+            let long = [h + self.wall_thickness, t];
+            let tall = [t, h + self.wall_thickness];
+            let bx = |center: Point, half_extents: Point| ObstacleSpec::Box {
+                center,
+                half_extents,
+                angle: 0.0,
+            };
+            out.extend([
+                bx([0.0, h + t], long),
+                bx([0.0, -h - t], long),
+                bx([h + t, 0.0], tall),
+                bx([-h - t, 0.0], tall),
+            ]);
+        }
+        out.extend(self.wall_segments.iter().map(|w| w.to_box(self.wall_thickness)));
+        out
+    }
+
+    /// A route by name.
+    pub fn route(&self, name: &str) -> Option<&Route> {
+        self.routes.iter().find(|r| r.name == name)
+    }
+}
+
+impl ObstacleSpec {
+    /// True when `p` lies inside or on the boundary of the shape (exact, `f64`).
+    pub fn contains(&self, p: Point) -> bool {
+        let mut hit = false;
+        self.for_each_primitive(&mut |s| {
+            hit |= match s {
+                ObstacleSpec::Circle { center, radius } => {
+                    (center[0] - p[0]).hypot(center[1] - p[1]) <= *radius
+                }
+                other => {
+                    let v = other.vertices().unwrap_or_default();
+                    let n = v.len();
+                    n >= 3
+                        && (0..n).all(|k| {
+                            let (a, b) = (v[k], v[(k + 1) % n]);
+                            (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0]) >= 0.0
+                        })
+                }
+            }
+        });
+        hit
     }
 }

@@ -8,5 +8,5 @@ pub mod networks;
 pub mod optim;
 
 pub use dvnav_common::config::SacConfig;
-pub use learning::{SacLearner, UpdateMetrics};
-pub use networks::SacNetworks;
+pub use learning::{SacLearner, UpdateMetrics, UpdateNoise};
+pub use networks::{GaussianPolicy, QFunction, SacNetworks};
