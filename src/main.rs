@@ -26,8 +26,19 @@ fn tune_allocator() {
     }
 }
 
+/// Dies quietly on a closed pipe (`dvnav inspect … | head`), like other command-line tools,
+/// instead of panicking in `println!`: Rust ignores SIGPIPE by default.
+fn restore_sigpipe() {
+    #[cfg(unix)]
+    // SAFETY: resets one signal disposition before any other thread exists.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
 fn main() -> std::process::ExitCode {
     tune_allocator();
+    restore_sigpipe();
     let args = cli::Cli::parse();
     cli::init_tracing(args.verbose);
     match cli::dispatch(args) {

@@ -281,7 +281,20 @@ impl Critic {
     /// Q(s, a) for a batch, shape `(batch,)`.
     pub fn forward(&self, obs: &Tensor, action: &Tensor) -> Result<Tensor> {
         let (scan, extra) = split_obs(obs, self.beams)?;
-        let h = Tensor::cat(&[self.encoder.forward(&scan)?, extra, action.clone()], 1)?;
+        self.head(&self.encoder.forward(&scan)?, &extra, action)
+    }
+
+    /// Q(s, a) with the scan features cut from the graph: the same value, and the same gradient
+    /// with respect to the action, without back-propagating into the convolutions. The policy
+    /// loss only needs ∂Q/∂a (the critic's own gradients are dropped there), and the scan
+    /// encoder's backward pass is the most expensive part of a critic's.
+    pub fn forward_for_policy(&self, obs: &Tensor, action: &Tensor) -> Result<Tensor> {
+        let (scan, extra) = split_obs(obs, self.beams)?;
+        self.head(&self.encoder.forward(&scan)?.detach(), &extra, action)
+    }
+
+    fn head(&self, features: &Tensor, extra: &Tensor, action: &Tensor) -> Result<Tensor> {
+        let h = Tensor::cat(&[features, extra, action], 1)?;
         let h = self.fc1.forward(&h)?.relu()?;
         let h = self.fc2.forward(&h)?.relu()?;
         self.q.forward(&h)?.squeeze(1)

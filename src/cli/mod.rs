@@ -5,6 +5,7 @@ mod bench;
 mod inspect;
 mod learner;
 mod plot;
+mod rooms;
 mod train;
 
 use clap::{Parser, Subcommand};
@@ -38,6 +39,8 @@ enum Command {
     Plot(plot::PlotArgs),
     /// Benchmarks that print figures (JSON with --json).
     Bench(bench::BenchArgs),
+    /// List the built-in rooms or draw one (or a room file) to a PNG.
+    Rooms(rooms::RoomsArgs),
 }
 
 /// Sets up logging to stderr.
@@ -66,6 +69,7 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Inspect(a) => inspect::run(a),
         Command::Plot(a) => plot::run(a),
         Command::Bench(a) => bench::run(a),
+        Command::Rooms(a) => rooms::run(a),
     }
 }
 

@@ -7,10 +7,13 @@
 //! - [`WorldView`]: metres in a room's world frame (y up) to pixels (y down) in a panel.
 //! - [`room`]: walls and obstacles of a [`dvnav_common::sim::RoomSpec`].
 //! - [`trajectories`]: `dvnav plot trajectories`, episode paths over their rooms.
+//! - [`room_map`]: `dvnav rooms show`, a room with its spawn regions, routes, timed obstacles
+//!   and a robot footprint.
 //!
 //! Later figures (rooms on their own, learning curves, DVST footprints) add modules here.
 
 pub mod room;
+pub mod room_map;
 pub mod text;
 pub mod trajectories;
 

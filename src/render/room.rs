@@ -20,7 +20,7 @@ fn box_corners(center: [f64; 2], half: [f64; 2], angle: f64) -> [[f64; 2]; 4] {
 }
 
 /// Draws one convex shape (a compound's parts one by one).
-fn draw_shape(canvas: &mut Canvas, view: &WorldView, shape: &ObstacleSpec, color: Rgba) {
+pub fn draw_shape(canvas: &mut Canvas, view: &WorldView, shape: &ObstacleSpec, color: Rgba) {
     shape.for_each_primitive(&mut |o| match o {
         ObstacleSpec::Box { center, half_extents, angle } => {
             let pts: Vec<_> =

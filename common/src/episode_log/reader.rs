@@ -308,7 +308,8 @@ pub fn episode_detail(record: &EpisodeRecord, steps: &[dvnav_proto::StepRecord])
 const MAX_CHUNK_BYTES: u64 = 256 * 1024 * 1024;
 
 /// The prefix of an MCAP file up to its first chunk that claims an implausible uncompressed
-/// size, and why it stops there. Walks the record framing only (opcode, length); stops quietly
+/// size (or up to the chunk being written, whose sizes are placeholders), and why it stops
+/// there when that is damage. Walks the record framing only (opcode, length); stops quietly
 /// at a truncated record, which the readers report themselves.
 pub(crate) fn sane_prefix(bytes: &[u8]) -> (&[u8], Option<String>) {
     const MAGIC: usize = 8;
@@ -324,6 +325,11 @@ pub(crate) fn sane_prefix(bytes: &[u8]) -> (&[u8], Option<String>) {
             && let Some(size) = u64_at(body + 16)
             && size > MAX_CHUNK_BYTES
         {
+            // The chunk still being written (the writer streams it with placeholder sizes and
+            // fills them in when it closes): the unfinished tail a killed writer leaves.
+            if size == u64::MAX {
+                return (&bytes[..at], None);
+            }
             let why = format!("chunk at byte {at} claims {size} bytes uncompressed (damaged)");
             return (&bytes[..at], Some(why));
         }

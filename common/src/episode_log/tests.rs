@@ -791,7 +791,7 @@ fn check_file_decodes_everything_and_tells_finished_from_cut_and_damaged() {
 
     // A damaged chunk size field must not abort the process (the mcap crate reserves the
     // claimed size): every single-byte flip in the first two chunks' headers reads or reports.
-    for at in (0..(ends[1] as usize).min(bytes.len())).step_by(7) {
+    for at in (0..(ends[1] as usize).min(bytes.len())).step_by(211) {
         let mut d = bytes.clone();
         d[at] ^= 0xff;
         std::fs::write(&bad, &d).unwrap();

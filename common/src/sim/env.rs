@@ -671,7 +671,11 @@ mod tests {
         });
         let room = Arc::new(Room::new(spec));
         let rect = Footprint::rectangle(0.5, 0.3);
-        for fp in [Footprint::circle(0.2), rect.clone(), rect.with_cargo([ObstacleSpec::Circle { center: [-0.4, 0.0], radius: 0.1 }])] {
+        for fp in [
+            Footprint::circle(0.2),
+            rect.clone(),
+            rect.with_cargo([ObstacleSpec::Circle { center: [-0.4, 0.0], radius: 0.1 }]),
+        ] {
             let front = fp.parts.iter().map(|p| p.aabb()[1][0]).fold(f64::MIN, f64::max);
             for (v_max, dt) in [(0.5, 0.2), (5.0, 1.0)] {
                 let cfg = EnvConfig { v_max, dt, ..cfg() };
@@ -686,7 +690,11 @@ mod tests {
                 }
                 assert_eq!(done, Some(Outcome::Collision), "{} at {v_max} m/s", fp.name);
                 let nose = env.pose().x + front;
-                assert!(nose >= 0.99 - 1e-6 && nose <= 0.99 + 0.02 + 1e-6, "{}: nose at {nose}", fp.name);
+                assert!(
+                    (0.99 - 1e-6..=0.99 + 0.02 + 1e-6).contains(&nose),
+                    "{}: nose at {nose}",
+                    fp.name
+                );
             }
         }
     }
@@ -714,7 +722,10 @@ mod tests {
         // Stopped at the first contact: a corner reaches y = 0.3 at yaw ≈ asin(0.25/0.51)−atan(0.1).
         let yaw = env.pose().yaw;
         let contact = (0.3f64 / 0.5f64.hypot(0.05)).asin() - (0.05f64 / 0.5).atan();
-        assert!(yaw >= contact - 1e-9 && yaw <= contact + 0.02 / 0.5 + 1e-9, "yaw {yaw} vs {contact}");
+        assert!(
+            yaw >= contact - 1e-9 && yaw <= contact + 0.02 / 0.5 + 1e-9,
+            "yaw {yaw} vs {contact}"
+        );
         assert!(env.pose().position() == [0.0, 0.0]);
         // The same turn the other way is free (the wall is only on the left).
         let mut env = NavEnv::with_footprint(room, &cfg, 1, fp);
@@ -791,13 +802,26 @@ mod tests {
             let y = env.pose().y;
             if k < 8 {
                 assert_eq!(env.timed_active(), 0);
-                assert!(ahead(&env) > 2.0 && (ahead(&env) - (before - 0.1)).abs() < 1e-3, "step {k}");
+                assert!(
+                    ahead(&env) > 2.0 && (ahead(&env) - (before - 0.1)).abs() < 1e-3,
+                    "step {k}"
+                );
             } else if out.done.is_none() {
                 assert!(env.timed_active() >= 1);
                 // The disc at (0, −1), r 0.3: the beam just left of ahead meets it near y = −1.3.
-                assert!((ahead(&env) - (-1.3 - y)).abs() < 1e-3, "step {k}: {} at y {y}", ahead(&env));
+                assert!(
+                    (ahead(&env) - (-1.3 - y)).abs() < 1e-3,
+                    "step {k}: {} at y {y}",
+                    ahead(&env)
+                );
             }
-            env.lidar().scan_reference_active(&room, env.pose(), env.timed_active(), None::<&mut Pcg64>, &mut reference);
+            env.lidar().scan_reference_active(
+                &room,
+                env.pose(),
+                env.timed_active(),
+                None::<&mut Pcg64>,
+                &mut reference,
+            );
             for (i, (&f, &r)) in env.scan().iter().zip(&reference).enumerate() {
                 assert!((f - r).abs() < 1e-4, "step {k}, beam {i}: {f} vs rapier {r}");
             }

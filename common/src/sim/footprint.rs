@@ -19,9 +19,9 @@
 //! radius = 0.15
 //! ```
 
+use super::Pose2;
 use super::room_file::{SpecFileError, line_of, parse_toml};
 use super::spec::{ObstacleSpec, Point};
-use super::Pose2;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -160,7 +160,10 @@ impl Footprint {
             }
             p.get_ref().validate().map_err(|e| err(line, format!("parts[{i}]"), e.to_string()))?;
         }
-        Ok(Footprint { name: file.name, parts: file.parts.into_iter().map(|p| p.into_inner()).collect() })
+        Ok(Footprint {
+            name: file.name,
+            parts: file.parts.into_iter().map(|p| p.into_inner()).collect(),
+        })
     }
 
     /// Reads a footprint file.

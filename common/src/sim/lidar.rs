@@ -291,11 +291,14 @@ mod tests {
 
     #[test]
     fn polygon_and_compound_ranges_are_exact() {
-        // A triangle whose left face x + y = 2 faces the sensor: beam θ hits at 2/(cosθ + sinθ)
-        // while it meets that face; and a compound L to the left, seen along +y.
+        // A triangle whose face x = 2 (from (2, 1) down to (2, 0)) faces the sensor: beam θ > 0
+        // hits at 2/cosθ while it meets that face; below it a triangle whose face x − y = 2
+        // faces the sensor; and a compound (a bar and a disc) seen along +y.
         let mut spec = RoomSpec::empty("shapes", 20.0);
-        spec.obstacles.push(ObstacleSpec::Polygon { points: vec![[2.0, 0.0], [3.0, -1.0], [2.0, 1.0]] });
-        spec.obstacles.push(ObstacleSpec::Polygon { points: vec![[1.0, -1.0], [3.0, -1.0], [2.0, 0.0]] });
+        spec.obstacles
+            .push(ObstacleSpec::Polygon { points: vec![[2.0, 0.0], [3.0, -1.0], [2.0, 1.0]] });
+        spec.obstacles
+            .push(ObstacleSpec::Polygon { points: vec![[1.0, -1.0], [3.0, -1.0], [2.0, 0.0]] });
         spec.obstacles.push(ObstacleSpec::Compound {
             at: [0.0, 3.0],
             parts: vec![
@@ -309,21 +312,26 @@ mod tests {
         lidar.scan(&room, Pose2::default(), NO_NOISE, &mut out);
         // Straight ahead: the vertex (2, 0) shared by both triangles.
         assert!((out[15] as f64 - 2.0).abs() < 1e-6, "{}", out[15]);
-        for (i, &theta) in lidar.beam_angles().iter().enumerate().filter(|(_, t)| **t > 0.0 && **t < 0.4) {
-            let expect = 2.0 / (theta.cos() + theta.sin());
+        for (i, &theta) in
+            lidar.beam_angles().iter().enumerate().filter(|(_, t)| **t > 0.0 && **t < 0.46)
+        {
+            let expect = 2.0 / theta.cos();
             assert!((out[i] as f64 - expect).abs() < 1e-6, "beam {i}: {} vs {expect}", out[i]);
         }
-        // Below: the second triangle's face y = x − 2 … its top vertex; beam −θ meets
-        // x − y = 2 at 2/(cosθ + sinθ) too, until it passes the edge's end (1, −1).
-        for (i, &theta) in lidar.beam_angles().iter().enumerate().filter(|(_, t)| **t < 0.0 && **t > -0.7) {
+        // Below: beam θ < 0 meets x − y = 2 at 2/(cosθ − sinθ) until it passes the edge's end
+        // (1, −1) at −45°.
+        for (i, &theta) in
+            lidar.beam_angles().iter().enumerate().filter(|(_, t)| **t < 0.0 && **t > -0.7)
+        {
             let expect = 2.0 / (theta.cos() - theta.sin());
             assert!((out[i] as f64 - expect).abs() < 1e-6, "beam {i}: {} vs {expect}", out[i]);
         }
         // Facing +y: the compound's circle (bottom at y = 2.3), then its box beside it.
         lidar.scan(&room, Pose2::new(0.0, 0.0, std::f64::consts::FRAC_PI_2), NO_NOISE, &mut out);
         assert!((out[15] as f64 - 2.3).abs() < 1e-6, "{}", out[15]);
-        let side = lidar.beam_angles()[5]; // far right of the circle
-        assert!((out[5] as f64 - 2.9 / side.cos()).abs() < 1e-6, "box face y = 2.9: {}", out[5]);
+        // Beam 11 (−11.6°) passes 0.5 m right of the circle's centre and meets the bar.
+        let side = lidar.beam_angles()[11];
+        assert!((out[11] as f64 - 2.9 / side.cos()).abs() < 1e-6, "bar face y = 2.9: {}", out[11]);
     }
 
     #[test]
@@ -339,7 +347,7 @@ mod tests {
         assert!(!room.circle_collides(pose.position(), 0.199));
         // On the wall's face itself the sensor is on the boundary: every beam reads range_min.
         lidar.scan(&room, Pose2::new(2.0, 0.0, 0.0), NO_NOISE, &mut out);
-        assert!(out.iter().all(|&r| r as f64 == lidar.range_min()), "{out:?}");
+        assert!(out.iter().all(|&r| r == lidar.range_min() as f32), "{out:?}");
     }
 
     #[test]
@@ -347,7 +355,11 @@ mod tests {
         // The box's bottom edge lies on the beam's line y = 0: the beam grazes the whole edge
         // and first touches the corner (1, 0).
         let mut spec = RoomSpec::empty("graze", 10.0);
-        spec.obstacles.push(ObstacleSpec::Box { center: [1.5, 0.5], half_extents: [0.5, 0.5], angle: 0.0 });
+        spec.obstacles.push(ObstacleSpec::Box {
+            center: [1.5, 0.5],
+            half_extents: [0.5, 0.5],
+            angle: 0.0,
+        });
         let room = Room::new(spec);
         let lidar = odd_lidar();
         let mut out = vec![0.0; 31];

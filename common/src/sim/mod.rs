@@ -50,9 +50,7 @@ pub use footprint::Footprint;
 pub use lidar::Lidar;
 pub use room::Room;
 pub use room_file::SpecFileError;
-pub use spec::{
-    ObstacleSpec, Point, RoomSpec, Route, SpawnRegion, TimedObstacle, WallSegment,
-};
+pub use spec::{ObstacleSpec, Point, RoomSpec, Route, SpawnRegion, TimedObstacle, WallSegment};
 pub use vec_env::VecEnv;
 
 /// A planar pose: position (m) in the room frame and heading `yaw` (rad, counter-clockwise

@@ -59,9 +59,10 @@ pub(super) fn shape_for(o: &ObstacleSpec) -> Option<(Pose, SharedShape)> {
             Pose::new(v(center), *angle as Real),
             SharedShape::cuboid(half_extents[0] as Real, half_extents[1] as Real),
         )),
-        ObstacleSpec::Circle { center, radius } => {
-            Some((Pose::translation(center[0] as Real, center[1] as Real), SharedShape::ball(*radius as Real)))
-        }
+        ObstacleSpec::Circle { center, radius } => Some((
+            Pose::translation(center[0] as Real, center[1] as Real),
+            SharedShape::ball(*radius as Real),
+        )),
         ObstacleSpec::Polygon { points } => {
             let pts: Vec<Vector> = points.iter().map(v).collect();
             Some((Pose::IDENTITY, SharedShape::convex_polyline(pts)?))
@@ -91,7 +92,10 @@ pub(super) struct Body {
 
 impl std::fmt::Debug for Body {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Body").field("circle", &self.circle).field("parts", &self.parts.len()).finish()
+        f.debug_struct("Body")
+            .field("circle", &self.circle)
+            .field("parts", &self.parts.len())
+            .finish()
     }
 }
 
@@ -153,14 +157,13 @@ impl Room {
     /// A built-in room (the files in `rooms/`, embedded in the binary): `env0`..`env3` (the
     /// training layout at side 8, 7, 6, 5 m), `sac_ri` (that layout at 12 m), `gate`, `dynamic`.
     pub fn builtin(name: &str) -> anyhow::Result<Arc<Room>> {
-        let spec = room_file::builtin_specs().into_iter().find(|s| s.name == name).with_context(
-            || {
+        let spec =
+            room_file::builtin_specs().into_iter().find(|s| s.name == name).with_context(|| {
                 format!(
                     "unknown room `{name}`; built-in rooms are: {}",
                     Room::builtin_names().join(", ")
                 )
-            },
-        )?;
+            })?;
         Ok(Arc::new(Room::try_new(spec)?))
     }
 
@@ -305,9 +308,9 @@ impl Room {
     }
 
     fn timed_hits(&self, pose: &Pose, shape: &dyn Shape, active: usize) -> bool {
-        self.timed[..active.min(self.timed.len())].iter().flat_map(|t| &t.parts).any(
-            |(p, s)| query::intersection_test(pose, shape, p, s.as_ref()).is_ok_and(|h| h.intersecting),
-        )
+        self.timed[..active.min(self.timed.len())].iter().flat_map(|t| &t.parts).any(|(p, s)| {
+            query::intersection_test(pose, shape, p, s.as_ref()).is_ok_and(|h| h.intersecting)
+        })
     }
 
     /// True when `body` at `pose` touches or overlaps a wall, a static obstacle, or one of the
@@ -322,7 +325,11 @@ impl Room {
                 return false;
             }
             let ball = Ball::new(r as Real);
-            return self.timed_hits(&Pose::translation(pose.x as Real, pose.y as Real), &ball, active);
+            return self.timed_hits(
+                &Pose::translation(pose.x as Real, pose.y as Real),
+                &ball,
+                active,
+            );
         }
         let at = pose_of(pose);
         body.parts.iter().any(|(local, shape)| {
@@ -500,7 +507,10 @@ mod tests {
                     bx([0.45, 0.0], [0.05, 0.4], 0.0),
                 ],
             ),
-            ([2.4, -2.4], vec![bx([0.0, -0.3], [0.35, 0.05], 0.0), bx([0.3, 0.0], [0.05, 0.35], 0.0)]),
+            (
+                [2.4, -2.4],
+                vec![bx([0.0, -0.3], [0.35, 0.05], 0.0), bx([0.3, 0.0], [0.05, 0.35], 0.0)],
+            ),
             ([0.0, -2.4], vec![Circle { center: [0.0, 0.0], radius: 0.35 }]),
             ([2.4, 2.4], vec![Circle { center: [0.0, 0.0], radius: 0.3 }]),
             ([2.4, 0.0], vec![regular(5, 0.35, 0.3)]),
@@ -512,10 +522,17 @@ mod tests {
             let s = side / 8.0;
             let old: Vec<ObstacleSpec> = groups
                 .iter()
-                .flat_map(|(a, parts)| parts.iter().map(move |p| p.translated([a[0] * s, a[1] * s])))
+                .flat_map(|(a, parts)| {
+                    parts.iter().map(move |p| p.translated([a[0] * s, a[1] * s]))
+                })
                 .collect();
-            let new: Vec<ObstacleSpec> =
-                Room::builtin(name).unwrap().spec().obstacles.iter().flat_map(|o| o.primitives()).collect();
+            let new: Vec<ObstacleSpec> = Room::builtin(name)
+                .unwrap()
+                .spec()
+                .obstacles
+                .iter()
+                .flat_map(|o| o.primitives())
+                .collect();
             assert_eq!(new, old, "{name}");
         }
     }
@@ -574,14 +591,30 @@ mod tests {
 
     /// Cells of a grid over the room (pitch `h`) whose disc of radius `r` is free and that are
     /// connected to `from` through free cells with `keep(x, y)`; whether `to` is among them.
-    fn reachable(room: &Room, r: f64, from: [f64; 2], to: [f64; 2], keep: impl Fn(f64, f64) -> bool) -> bool {
+    fn reachable(
+        room: &Room,
+        r: f64,
+        from: [f64; 2],
+        to: [f64; 2],
+        keep: impl Fn(f64, f64) -> bool,
+    ) -> bool {
         let h = 0.025;
         let n = (room.side() / h).round() as i64;
-        let cell = |p: [f64; 2]| (((p[0] + room.side() / 2.0) / h).round() as i64, ((p[1] + room.side() / 2.0) / h).round() as i64);
-        let pos = |(i, j): (i64, i64)| [i as f64 * h - room.side() / 2.0, j as f64 * h - room.side() / 2.0];
+        let cell = |p: [f64; 2]| {
+            (
+                ((p[0] + room.side() / 2.0) / h).round() as i64,
+                ((p[1] + room.side() / 2.0) / h).round() as i64,
+            )
+        };
+        let pos = |(i, j): (i64, i64)| {
+            [i as f64 * h - room.side() / 2.0, j as f64 * h - room.side() / 2.0]
+        };
         let free = |c: (i64, i64)| {
             let p = pos(c);
-            (0..=n).contains(&c.0) && (0..=n).contains(&c.1) && keep(p[0], p[1]) && !room.circle_collides(p, r)
+            (0..=n).contains(&c.0)
+                && (0..=n).contains(&c.1)
+                && keep(p[0], p[1])
+                && !room.circle_collides(p, r)
         };
         let (start, goal) = (cell(from), cell(to));
         assert!(free(start) && free(goal), "start and goal must be free for r = {r}");
@@ -635,7 +668,9 @@ mod tests {
         // Every robot of design §2's twelve (0.20 … 0.75 m) starts and ends in free space.
         for k in 0..12 {
             let r = 0.20 + 0.05 * k as f64;
-            assert!(!room.circle_collides(route.start, r) && !room.circle_collides(route.goals[0], r));
+            assert!(
+                !room.circle_collides(route.start, r) && !room.circle_collides(route.goals[0], r)
+            );
         }
     }
 

@@ -23,8 +23,8 @@
 //! unique names). Nothing here panics on bad input.
 
 use super::spec::{
-    ObstacleSpec, Point, Route, RoomSpec, SpawnRegion, TimedObstacle, WallSegment,
-    DEFAULT_WALL_THICKNESS,
+    DEFAULT_WALL_THICKNESS, ObstacleSpec, Point, RoomSpec, Route, SpawnRegion, TimedObstacle,
+    WallSegment,
 };
 use serde::Deserialize;
 use std::fmt;
@@ -120,6 +120,9 @@ fn yes() -> bool {
     true
 }
 
+/// A room a file asks for: name, side, description, and the span it was named at.
+type RoomToBuild = (String, f64, Option<String>, Option<std::ops::Range<usize>>);
+
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct Instance {
@@ -136,7 +139,12 @@ struct Ctx<'a> {
 }
 
 impl Ctx<'_> {
-    fn err(&self, span: Option<std::ops::Range<usize>>, key: &str, reason: impl fmt::Display) -> SpecFileError {
+    fn err(
+        &self,
+        span: Option<std::ops::Range<usize>>,
+        key: &str,
+        reason: impl fmt::Display,
+    ) -> SpecFileError {
         SpecFileError {
             source: self.source.to_string(),
             line: span.map(|s| line_of(self.text, s.start)),
@@ -167,57 +175,56 @@ fn parse_instances(
 
     // Which rooms: one (`name`, `side`) or a layout with instances.
     let single = file.name.is_some() || file.side.is_some();
-    let rooms: Vec<(String, f64, Option<String>, Option<std::ops::Range<usize>>)> =
-        match (single, &file.layout_side, file.instances.is_empty()) {
-            (true, None, true) => {
-                let name = file.name.as_ref().ok_or_else(|| {
-                    ctx.err(None, "name", "a room file needs `name` (or `[[instances]]`)")
-                })?;
-                let side = file.side.as_ref().ok_or_else(|| {
-                    ctx.err(Some(name.span()), "side", "a room file needs `side` (m)")
-                })?;
-                vec![(name.get_ref().clone(), *side.get_ref(), None, Some(side.span()))]
-            }
-            (false, Some(_), false) => file
-                .instances
-                .iter()
-                .map(|i| {
-                    let v = i.get_ref();
-                    (v.name.clone(), v.side, v.description.clone(), Some(i.span()))
-                })
-                .collect(),
-            (false, Some(ls), true) => {
-                return Err(ctx.err(
-                    Some(ls.span()),
-                    "instances",
-                    "`layout_side` needs at least one `[[instances]]` (name and side)",
-                ));
-            }
-            (false, None, false) => {
-                return Err(ctx.err(
-                    Some(file.instances[0].span()),
-                    "layout_side",
-                    "`[[instances]]` need `layout_side`: the side the layout's positions are \
+    let rooms: Vec<RoomToBuild> = match (single, &file.layout_side, file.instances.is_empty()) {
+        (true, None, true) => {
+            let name = file.name.as_ref().ok_or_else(|| {
+                ctx.err(None, "name", "a room file needs `name` (or `[[instances]]`)")
+            })?;
+            let side = file.side.as_ref().ok_or_else(|| {
+                ctx.err(Some(name.span()), "side", "a room file needs `side` (m)")
+            })?;
+            vec![(name.get_ref().clone(), *side.get_ref(), None, Some(side.span()))]
+        }
+        (false, Some(_), false) => file
+            .instances
+            .iter()
+            .map(|i| {
+                let v = i.get_ref();
+                (v.name.clone(), v.side, v.description.clone(), Some(i.span()))
+            })
+            .collect(),
+        (false, Some(ls), true) => {
+            return Err(ctx.err(
+                Some(ls.span()),
+                "instances",
+                "`layout_side` needs at least one `[[instances]]` (name and side)",
+            ));
+        }
+        (false, None, false) => {
+            return Err(ctx.err(
+                Some(file.instances[0].span()),
+                "layout_side",
+                "`[[instances]]` need `layout_side`: the side the layout's positions are \
                      written for",
-                ));
-            }
-            (true, _, _) => {
-                let span = file.name.as_ref().map(|n| n.span());
-                return Err(ctx.err(
-                    span,
-                    "name",
-                    "give either `name` and `side` (one room) or `layout_side` and \
+            ));
+        }
+        (true, _, _) => {
+            let span = file.name.as_ref().map(|n| n.span());
+            return Err(ctx.err(
+                span,
+                "name",
+                "give either `name` and `side` (one room) or `layout_side` and \
                      `[[instances]]` (a layout at several sides), not both",
-                ));
-            }
-            (false, None, true) => {
-                return Err(ctx.err(
-                    None,
-                    "name",
-                    "a room file needs `name` and `side`, or `layout_side` and `[[instances]]`",
-                ));
-            }
-        };
+            ));
+        }
+        (false, None, true) => {
+            return Err(ctx.err(
+                None,
+                "name",
+                "a room file needs `name` and `side`, or `layout_side` and `[[instances]]`",
+            ));
+        }
+    };
     let rooms = match only {
         Some((name, side)) if file.layout_side.is_some() => {
             let description = file
@@ -233,7 +240,11 @@ fn parse_instances(
         Some(ls) => {
             let v = *ls.get_ref();
             if !(v.is_finite() && v > 0.0) {
-                return Err(ctx.err(Some(ls.span()), "layout_side", format!("must be positive, got {v}")));
+                return Err(ctx.err(
+                    Some(ls.span()),
+                    "layout_side",
+                    format!("must be positive, got {v}"),
+                ));
             }
             Some(v)
         }
@@ -286,7 +297,11 @@ fn parse_instances(
             return Err(ctx.err(Some(w.span()), &key, "needs two distinct, finite ends"));
         }
         if let Some(t) = s.thickness.filter(|t| !(t.is_finite() && *t > 0.0)) {
-            return Err(ctx.err(Some(w.span()), &key, format!("thickness must be positive, got {t}")));
+            return Err(ctx.err(
+                Some(w.span()),
+                &key,
+                format!("thickness must be positive, got {t}"),
+            ));
         }
     }
     if !square && file.spawn_regions.is_empty() {
@@ -301,8 +316,16 @@ fn parse_instances(
     for (i, r) in file.spawn_regions.iter().enumerate() {
         let v = r.get_ref();
         let key = format!("spawn_regions[{i}]");
-        if !(finite_point(&v.min) && finite_point(&v.max) && v.min[0] < v.max[0] && v.min[1] < v.max[1]) {
-            return Err(ctx.err(Some(r.span()), &key, "needs finite `min` below and left of `max`"));
+        if !(finite_point(&v.min)
+            && finite_point(&v.max)
+            && v.min[0] < v.max[0]
+            && v.min[1] < v.max[1])
+        {
+            return Err(ctx.err(
+                Some(r.span()),
+                &key,
+                "needs finite `min` below and left of `max`",
+            ));
         }
         if !(v.starts || v.goals) {
             return Err(ctx.err(Some(r.span()), &key, "`starts` and `goals` are both false"));
@@ -312,7 +335,10 @@ fn parse_instances(
         }
     }
     for kind in [true, false] {
-        let any = file.spawn_regions.iter().any(|r| if kind { r.get_ref().starts } else { r.get_ref().goals });
+        let any = file
+            .spawn_regions
+            .iter()
+            .any(|r| if kind { r.get_ref().starts } else { r.get_ref().goals });
         if !file.spawn_regions.is_empty() && !any {
             let what = if kind { "starts" } else { "goals" };
             return Err(ctx.err(
@@ -328,7 +354,10 @@ fn parse_instances(
         if v.goals.is_empty() {
             return Err(ctx.err(Some(r.span()), &key, "needs at least one goal"));
         }
-        if !(finite_point(&v.start) && v.goals.iter().all(finite_point) && v.heading_deg.is_finite()) {
+        if !(finite_point(&v.start)
+            && v.goals.iter().all(finite_point)
+            && v.heading_deg.is_finite())
+        {
             return Err(ctx.err(Some(r.span()), &key, "non-finite start, heading or goal"));
         }
         if file.routes[..i].iter().any(|o| o.get_ref().name == v.name) {
@@ -346,9 +375,11 @@ fn parse_instances(
                 ObstacleSpec::Compound { at: a, parts } => {
                     ObstacleSpec::Compound { at: at(*a), parts: parts.clone() }
                 }
-                ObstacleSpec::Box { center, half_extents, angle } => {
-                    ObstacleSpec::Box { center: at(*center), half_extents: *half_extents, angle: *angle }
-                }
+                ObstacleSpec::Box { center, half_extents, angle } => ObstacleSpec::Box {
+                    center: at(*center),
+                    half_extents: *half_extents,
+                    angle: *angle,
+                },
                 ObstacleSpec::Circle { center, radius } => {
                     ObstacleSpec::Circle { center: at(*center), radius: *radius }
                 }
@@ -395,7 +426,10 @@ fn parse_instances(
             timed_obstacles: file
                 .timed_obstacles
                 .iter()
-                .map(|t| TimedObstacle { at_step: t.get_ref().at_step, obstacle: place(&t.get_ref().obstacle) })
+                .map(|t| TimedObstacle {
+                    at_step: t.get_ref().at_step,
+                    obstacle: place(&t.get_ref().obstacle),
+                })
                 .collect(),
         };
         check_geometry(&ctx, &file, &spec)?;
@@ -430,7 +464,11 @@ fn check_geometry(ctx: &Ctx<'_>, file: &RoomFile, spec: &RoomSpec) -> Result<(),
         let [lo, hi] = o.aabb();
         if !inside(lo, hi, 0.0) {
             let what = format!("the {}", o.kind());
-            return Err(ctx.err(Some(f.span()), &format!("obstacles[{i}]"), out_of_room(&what, lo, hi)));
+            return Err(ctx.err(
+                Some(f.span()),
+                &format!("obstacles[{i}]"),
+                out_of_room(&what, lo, hi),
+            ));
         }
     }
     for (i, (t, f)) in spec.timed_obstacles.iter().zip(&file.timed_obstacles).enumerate() {
@@ -475,7 +513,11 @@ fn check_geometry(ctx: &Ctx<'_>, file: &RoomFile, spec: &RoomSpec) -> Result<(),
         let key = format!("routes[{i}]");
         if let Some(why) = blocked(r.start) {
             let p = r.start;
-            return Err(ctx.err(Some(f.span()), &key, format!("{room}start ({}, {}) {why}", p[0], p[1])));
+            return Err(ctx.err(
+                Some(f.span()),
+                &key,
+                format!("{room}start ({}, {}) {why}", p[0], p[1]),
+            ));
         }
         for (k, &g) in r.goals.iter().enumerate() {
             if let Some(why) = blocked(g) {
@@ -598,7 +640,13 @@ obstacle = { shape = "box", center = [0.0, 0.0], half_extents = [0.3, 0.3], angl
                 "convex",
             ),
             ("center = [1.0, 1.0]", "center = [1.9, 1.0]", 4, "obstacles[0]", "outside the room"),
-            ("goals = [[0.0, 1.5], [1.5, 0.0]]", "goals = [[0.0, 1.5], [1.0, 1.1]]", 22, "routes[0]", "goal 1 (1, 1.1) lies inside obstacles[0]"),
+            (
+                "goals = [[0.0, 1.5], [1.5, 0.0]]",
+                "goals = [[0.0, 1.5], [1.0, 1.1]]",
+                22,
+                "routes[0]",
+                "goal 1 (1, 1.1) lies inside obstacles[0]",
+            ),
             ("start = [0.0, -1.5]", "start = [0.0, -2.5]", 22, "routes[0]", "outside the room"),
             ("max = [1.8, -1.0]", "max = [-1.9, -1.0]", 17, "spawn_regions[0]", "below and left"),
             ("radius = 0.3", "radios = 0.3", 4, "", "unknown field `radios`"),
@@ -615,9 +663,15 @@ obstacle = { shape = "box", center = [0.0, 0.0], half_extents = [0.3, 0.3], angl
             assert!(shown.starts_with(&format!("small.toml:{line}:")), "{shown}");
         }
         // A compound part that is a compound, and a timed obstacle outside the room.
-        let e = broken("{ shape = \"box\", center = [0.0, 0.0], half_extents = [0.4, 0.05] }", "{ shape = \"compound\", parts = [] }");
+        let e = broken(
+            "{ shape = \"box\", center = [0.0, 0.0], half_extents = [0.4, 0.05] }",
+            "{ shape = \"compound\", parts = [] }",
+        );
         assert!(e.key == "obstacles[1]" && e.reason.contains("compound"), "{e}");
-        let e = broken("center = [0.0, 0.0], half_extents = [0.3, 0.3]", "center = [0.0, 3.0], half_extents = [0.3, 0.3]");
+        let e = broken(
+            "center = [0.0, 0.0], half_extents = [0.3, 0.3]",
+            "center = [0.0, 3.0], half_extents = [0.3, 0.3]",
+        );
         assert_eq!(e.key, "timed_obstacles[0].obstacle", "{e}");
         // Neither a room nor a layout; a layout without instances.
         let e = parse_room_file("side = 3.0\n", "x.toml").unwrap_err();
@@ -632,7 +686,14 @@ obstacle = { shape = "box", center = [0.0, 0.0], half_extents = [0.3, 0.3], angl
         .unwrap_err();
         assert_eq!(e.key, "walls.square", "{e}");
         // Garbage never panics.
-        for text in ["", "=", "[[obstacles]]\n", "name = 1", "\u{0}", "obstacles = 3\nname = \"a\"\nside = 1.0"] {
+        for text in [
+            "",
+            "=",
+            "[[obstacles]]\n",
+            "name = 1",
+            "\u{0}",
+            "obstacles = 3\nname = \"a\"\nside = 1.0",
+        ] {
             assert!(parse_room_file(text, "x.toml").is_err(), "{text:?}");
         }
     }
@@ -665,5 +726,22 @@ obstacle = { shape = "box", center = [0.0, 0.0], half_extents = [0.3, 0.3], angl
                 crate::sim::Room::try_new(r).unwrap();
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod readme {
+    /// The example room file in README § Rooms parses, and so does its footprint example.
+    #[test]
+    fn readme_examples_load() {
+        let readme = include_str!("../../../README.md");
+        let rooms = &readme[readme.find("## Rooms").expect("README has § Rooms")..];
+        let mut blocks = rooms.split("```toml\n").skip(1).map(|b| &b[..b.find("```").unwrap()]);
+        let room = blocks.next().unwrap();
+        let specs = super::parse_room_file(room, "README.md").unwrap();
+        assert_eq!(specs[0].name, "corridor");
+        crate::sim::Room::try_new(specs[0].clone()).unwrap();
+        let fp = crate::sim::Footprint::from_toml_str(blocks.next().unwrap(), "README.md").unwrap();
+        assert_eq!(fp.parts.len(), 2);
     }
 }

@@ -232,14 +232,14 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
         // Policy and temperature, delayed.
         if self.updates.is_multiple_of(self.cfg.policy_delay) {
             let pi = nets.actor.net.sample_with_noise(&obs, &eps_pi)?;
-            let q1_pi = nets.critic1.net.q(&obs, &pi.action)?;
-            let q2_pi = nets.critic2.net.q(&obs, &pi.action)?;
+            let q1_pi = nets.critic1.net.q_for_policy(&obs, &pi.action)?;
+            let q2_pi = nets.critic2.net.q_for_policy(&obs, &pi.action)?;
             let weights: Vec<Tensor> =
                 self.policy_weights.iter().map(|v| v.as_tensor().clone()).collect();
             let loss_pi =
                 actor_loss(&pi.log_prob, &q1_pi, &q2_pi, alpha, self.cfg.policy_l2, &weights)?;
-            // The backward pass also reaches the critics through Q(s, ã); only the policy's
-            // optimizer steps, so their gradients are dropped.
+            // The backward pass also reaches the critics' heads through Q(s, ã); only the
+            // policy's optimizer steps, so their gradients are dropped.
             self.actor_opt.step(&loss_pi.backward()?)?;
             self.last.actor_loss = scalar(&loss_pi)?;
             self.last.entropy = -scalar(&pi.log_prob.mean_all()?)?;

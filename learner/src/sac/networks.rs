@@ -31,6 +31,11 @@ pub trait GaussianPolicy {
 pub trait QFunction {
     /// Q(s, a) for a batch of observations and actions.
     fn q(&self, obs: &Tensor, action: &Tensor) -> Result<Tensor>;
+    /// Q(s, a) as the policy loss uses it: the same value, and the same gradient with respect
+    /// to the action; a network may skip gradients the policy loss throws away.
+    fn q_for_policy(&self, obs: &Tensor, action: &Tensor) -> Result<Tensor> {
+        self.q(obs, action)
+    }
 }
 
 impl GaussianPolicy for Actor {
@@ -45,6 +50,9 @@ impl GaussianPolicy for Actor {
 impl QFunction for Critic {
     fn q(&self, obs: &Tensor, action: &Tensor) -> Result<Tensor> {
         self.forward(obs, action)
+    }
+    fn q_for_policy(&self, obs: &Tensor, action: &Tensor) -> Result<Tensor> {
+        self.forward_for_policy(obs, action)
     }
 }
 
