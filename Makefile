@@ -1,7 +1,7 @@
 # dvnav — common tasks. `make test` is what CI runs (.ci/run).
 CARGO ?= cargo
 
-.PHONY: all build release test test-learning check-mcap lint fmt bench train clean
+.PHONY: all build release test test-learning check-mcap lint fmt bench torch-venv train clean
 
 all: build
 
@@ -12,9 +12,10 @@ release:
 	$(CARGO) build --release
 
 # Unit tests of every crate plus the end-to-end smoke test (learner + 2 actor processes).
+# One candle thread in tests: its spin-barrier CPU pool is several times slower on 2 busy cores.
 test:
-	$(CARGO) test --workspace --all-targets
-	$(CARGO) test --workspace --doc
+	CANDLE_NUM_THREADS=1 $(CARGO) test --workspace --all-targets
+	CANDLE_NUM_THREADS=1 $(CARGO) test --workspace --doc
 
 # The SAC learning test with a known answer: pendulum swing-up to a mean return >= -250 within
 # 20,000 steps (learner/tests/sac/pendulum.rs), 7-10 min on the busy 2-core dev machine; too slow for
