@@ -22,6 +22,24 @@ enum PlotCommand {
     /// The selected episodes' paths over their rooms (one panel per room), coloured by
     /// outcome: green success, red collision, orange timeout.
     Trajectories(TrajectoriesArgs),
+    /// Learning curves of one or more runs (seeds): per room, the training success rate over
+    /// the curriculum window (from each run's `metrics.csv`) against environment steps, mean ±
+    /// std over the runs.
+    Curves(CurvesArgs),
+}
+
+/// `dvnav plot curves`.
+#[derive(Args, Debug)]
+pub struct CurvesArgs {
+    /// Run directories (each with a `metrics.csv`), e.g. one per seed.
+    #[arg(required = true)]
+    pub runs: Vec<PathBuf>,
+    /// The PNG to write.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Points along the step axis.
+    #[arg(long, default_value_t = 100)]
+    pub points: usize,
 }
 
 /// `dvnav plot trajectories`.
@@ -46,7 +64,86 @@ pub struct TrajectoriesArgs {
 pub fn run(args: PlotArgs) -> anyhow::Result<ExitCode> {
     match args.command {
         PlotCommand::Trajectories(a) => trajectories(a),
+        PlotCommand::Curves(a) => curves(a),
     }
+}
+
+/// Per stage, the `(env_steps, success rate)` rows of a run's `metrics.csv` where the rate is
+/// defined.
+fn success_series(run: &Path) -> anyhow::Result<BTreeMap<u32, Vec<(f64, f64)>>> {
+    let path = run.join("metrics.csv");
+    let text = std::fs::read_to_string(&path).map_err(|e| {
+        anyhow::anyhow!("cannot read {}: {e} (is it a run directory?)", path.display())
+    })?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or("").split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name);
+    let steps = col("env_steps")
+        .ok_or_else(|| anyhow::anyhow!("{}: no `env_steps` column", path.display()))?;
+    let stages: Vec<(u32, usize)> = header
+        .iter()
+        .enumerate()
+        .filter_map(|(i, h)| h.strip_prefix("success_rate_stage")?.parse().ok().map(|k| (k, i)))
+        .collect();
+    let mut out: BTreeMap<u32, Vec<(f64, f64)>> = BTreeMap::new();
+    for (n, line) in lines.enumerate() {
+        let cells: Vec<&str> = line.split(',').collect();
+        if cells.len() != header.len() {
+            // A run killed mid-write leaves at most a partial last line.
+            tracing::warn!(file = %path.display(), line = n + 2, "skipping a malformed row");
+            continue;
+        }
+        let Ok(x) = cells[steps].parse::<f64>() else { continue };
+        for &(k, i) in &stages {
+            if let Ok(v) = cells[i].parse::<f64>()
+                && v.is_finite()
+            {
+                out.entry(k).or_default().push((x, v));
+            }
+        }
+    }
+    Ok(out)
+}
+
+fn curves(args: CurvesArgs) -> anyhow::Result<ExitCode> {
+    use crate::render::curves::{Axes, Curve, Panel, mean_std_on_grid, render};
+    let mut per_stage: BTreeMap<u32, Vec<Vec<(f64, f64)>>> = BTreeMap::new();
+    let mut x_max: f64 = 0.0;
+    for run in &args.runs {
+        for (k, series) in success_series(run)? {
+            x_max = series.iter().fold(x_max, |m, (x, _)| m.max(*x));
+            per_stage.entry(k).or_default().push(series);
+        }
+    }
+    anyhow::ensure!(!per_stage.is_empty(), "no success rates in the runs' metrics.csv yet");
+    let n = args.points.max(2);
+    let grid: Vec<f64> = (0..n).map(|i| x_max * i as f64 / (n - 1) as f64).collect();
+    let rooms = dvnav_common::config::Config::default().curriculum.rooms;
+    let panels: Vec<Panel> = per_stage
+        .iter()
+        .map(|(k, runs)| Panel {
+            title: match rooms.get(*k as usize) {
+                Some(r) => format!("stage {k}: {r}"),
+                None => format!("stage {k}"),
+            },
+            curves: vec![Curve {
+                label: format!("{} run(s)", runs.len()),
+                points: mean_std_on_grid(runs, &grid),
+            }],
+        })
+        .collect();
+    let axes = Axes { x_max, y_min: 0.0, y_max: 1.0, y_label: "success rate".into() };
+    let canvas = render(&panels, &axes, 480, 360)?;
+    std::fs::write(&args.out, canvas.encode_png()?)
+        .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", args.out.display()))?;
+    println!(
+        "wrote {} ({} stage panel(s), {} run(s), up to {} steps)",
+        args.out.display(),
+        panels.len(),
+        args.runs.len(),
+        x_max
+    );
+    Ok(ExitCode::SUCCESS)
 }
 
 /// The latest `max` records (highest ids, per actor in turn), in their original order.
@@ -171,5 +268,43 @@ mod tests {
         assert_eq!(keep(3), [(0, 5), (0, 9), (1, 7)]);
         assert_eq!(keep(4), [(0, 5), (0, 9), (1, 5), (1, 7)]);
         assert_eq!(keep(10).len(), 6);
+    }
+}
+
+#[cfg(test)]
+mod curve_tests {
+    use super::*;
+
+    #[test]
+    fn success_series_reads_each_stage_and_skips_undefined_and_torn_rows() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(
+            dir.path().join("metrics.csv"),
+            "time_s,env_steps,success_rate_stage0,success_rate_stage1\n\
+             0.0,0,NaN,NaN\n\
+             2.0,100,0.5,NaN\n\
+             4.0,200,0.9,0.1\n\
+             6.0,300,0.9",
+        )
+        .unwrap();
+        let s = success_series(dir.path()).unwrap();
+        assert_eq!(s[&0], vec![(100.0, 0.5), (200.0, 0.9)]);
+        assert_eq!(s[&1], vec![(200.0, 0.1)]);
+        let err = success_series(&dir.path().join("missing")).unwrap_err().to_string();
+        assert!(err.contains("metrics.csv"), "{err}");
+    }
+
+    #[test]
+    fn curves_writes_a_png() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(
+            dir.path().join("metrics.csv"),
+            "env_steps,success_rate_stage0\n0,0.1\n100,0.4\n200,0.8\n",
+        )
+        .unwrap();
+        let out = dir.path().join("c.png");
+        curves(CurvesArgs { runs: vec![dir.path().to_path_buf()], out: out.clone(), points: 10 })
+            .unwrap();
+        assert!(std::fs::read(&out).unwrap().starts_with(b"\x89PNG"));
     }
 }

@@ -5,13 +5,15 @@
 //! # Layout
 //! - [`Canvas`]: a pixmap with the few primitives figures use (lines, polygons, discs, text).
 //! - [`WorldView`]: metres in a room's world frame (y up) to pixels (y down) in a panel.
+//! - [`curves`]: learning curves, mean ± std over runs, one panel per room.
 //! - [`room`]: walls and obstacles of a [`dvnav_common::sim::RoomSpec`].
 //! - [`trajectories`]: `dvnav plot trajectories`, episode paths over their rooms.
 //! - [`room_map`]: `dvnav rooms show`, a room with its spawn regions, routes, timed obstacles
 //!   and a robot footprint.
 //!
-//! Later figures (rooms on their own, learning curves, DVST footprints) add modules here.
+//! Later figures (DVST footprints, the gate test) add modules here.
 
+pub mod curves;
 pub mod room;
 pub mod room_map;
 pub mod text;
