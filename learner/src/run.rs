@@ -127,11 +127,12 @@ pub async fn run(
     let service = LearnerService::server(state.clone());
     let mut server_stop = state.shutdown_signal();
     let server = tokio::spawn(
-        crate::service::transport_server()
-            .add_service(service)
-            .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async move {
+        crate::service::transport_server().add_service(service).serve_with_incoming_shutdown(
+            TcpListenerStream::new(listener),
+            async move {
                 let _ = server_stop.wait_for(|s| *s).await;
-            }),
+            },
+        ),
     );
 
     // Until the budget is reached or we are told to stop.

@@ -175,7 +175,8 @@ fn bench_env(steps: usize) -> anyhow::Result<serde_json::Value> {
     let one = steps as f64 / t.elapsed().as_secs_f64();
 
     let threads = rayon::current_num_threads();
-    let n = 4 * threads;
+    // Enough environments per thread that a round outweighs rayon's fork-join cost (~µs).
+    let n = 32 * threads;
     let seeds: Vec<u64> = (0..n as u64).collect();
     let mut venv = VecEnv::new(vec![room; n], &cfg.env, &seeds);
     let rounds = (steps / n).max(1);

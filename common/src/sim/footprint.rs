@@ -216,4 +216,17 @@ mod tests {
         let e = Footprint::from_toml_str("parts = []\n", "x.toml").unwrap_err();
         assert!(e.reason.contains("at least one part"), "{e}");
     }
+
+    #[test]
+    fn a_footprint_in_the_run_config_round_trips_and_bad_ones_name_the_key() {
+        use crate::config::Config;
+        let text = "[env.footprint]\nname = \"cart\"\n[[env.footprint.parts]]\nshape = \"box\"\n\
+                    center = [0.1, 0.0]\nhalf_extents = [0.3, 0.2]\n";
+        let cfg = Config::from_toml_str(text).unwrap();
+        let fp = cfg.env.footprint.clone().unwrap();
+        assert!((fp.bounding_radius() - 0.4f64.hypot(0.2)).abs() < 1e-12);
+        assert_eq!(Config::from_toml_str(&cfg.to_toml_string()).unwrap(), cfg);
+        let bad = text.replace("[0.3, 0.2]", "[0.3, -0.2]");
+        assert_eq!(Config::from_toml_str(&bad).unwrap_err().key, "env.footprint");
+    }
 }
