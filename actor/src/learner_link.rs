@@ -28,8 +28,8 @@ use tonic::transport::{Channel, Endpoint};
 
 /// Longest wait between two reconnection attempts.
 pub const MAX_BACKOFF: Duration = Duration::from_secs(5);
-/// After a local stop (Ctrl-C) the actor gives up delivering what is left after this long
-/// without a learner.
+/// After a local stop (Ctrl-C), or once the learner has said stop, the actor gives up delivering
+/// what is left after this long without a learner.
 pub const GIVE_UP_AFTER_STOP: Duration = Duration::from_secs(10);
 
 /// Adds `authorization: Bearer <token>` to every call when a token is set.
@@ -325,8 +325,8 @@ pub struct LinkOptions {
 }
 
 /// Runs the link until the adder closes `batches` and the learner has acknowledged everything,
-/// reconnecting whenever the learner goes away. Gives up only after a local stop (`stop`) with
-/// no learner for [`GIVE_UP_AFTER_STOP`].
+/// reconnecting whenever the learner goes away. Gives up only after a stop (local, `stop`, or
+/// from the learner) with no learner for [`GIVE_UP_AFTER_STOP`].
 pub async fn run_link(
     opts: LinkOptions,
     mut client: Client,
@@ -357,7 +357,12 @@ pub async fn run_link(
         let lost_at = Instant::now();
         let mut backoff = Duration::from_millis(100);
         let reconnected = loop {
-            if stop.load(Ordering::Relaxed) && lost_at.elapsed() > GIVE_UP_AFTER_STOP {
+            // A learner that already said stop is finishing its run and will not come back;
+            // neither will one this actor was told locally to leave.
+            let learner_said_stop = variables.borrow().as_ref().is_some_and(|v| v.stop);
+            if (stop.load(Ordering::Relaxed) || learner_said_stop)
+                && lost_at.elapsed() > GIVE_UP_AFTER_STOP
+            {
                 break None;
             }
             tokio::time::sleep(backoff).await;
@@ -374,7 +379,7 @@ pub async fn run_link(
             tracing::error!(
                 name = %opts.name,
                 undelivered = outbox.lock().expect("link lock").pending_transitions(),
-                "giving up on the learner after a local stop"
+                "giving up on the learner after a stop"
             );
             break;
         };
