@@ -22,7 +22,8 @@ test:
 # `make test`, so CI runs it after. One candle thread: its spin-barrier pool and rayon matmuls
 # made the same test 8x slower on a busy 2-core machine.
 test-learning:
-	CANDLE_NUM_THREADS=1 RAYON_NUM_THREADS=1 $(CARGO) test -p dvnav-learner --test sac -- --ignored --nocapture pendulum
+	# --workspace (not -p): the same feature set as `make test`, so nothing is rebuilt.
+	CANDLE_NUM_THREADS=1 RAYON_NUM_THREADS=1 $(CARGO) test --workspace --test sac -- --ignored --nocapture pendulum
 
 # An independent reader of the MCAP episode logs: the Python `mcap` and `mcap-protobuf-support`
 # packages (in a venv under target/) decode every message of a fresh ~3 s run that logs every
