@@ -157,13 +157,39 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
 
 fn bench_env(steps: usize) -> anyhow::Result<serde_json::Value> {
     use dvnav_common::config::Config;
-    use dvnav_common::sim::{NavEnv, Room, VecEnv};
+    use dvnav_common::sim::{NavEnv, Room};
+    use rayon::prelude::*;
     use std::time::Instant;
     let cfg = Config::default();
     let room = Room::builtin("env0")?;
     // A gently turning drive: long enough episodes, some collisions, like an early policy.
     let command = |k: usize| (0.4, if (k / 20).is_multiple_of(2) { 0.6 } else { -0.6 });
 
+    // The same 64 environments (32 per thread on 2 cores: a round outweighs rayon's fork-join
+    // cost) stepped, and reset when done, on a 1-thread pool and then on all threads.
+    let threads = rayon::current_num_threads();
+    let n = 32 * threads.max(2);
+    let rounds = (steps / n).max(1);
+    let measure = |pool: &rayon::ThreadPool| -> f64 {
+        let mut envs: Vec<NavEnv> =
+            (0..n as u64).map(|seed| NavEnv::new(room.clone(), &cfg.env, seed)).collect();
+        pool.install(|| {
+            let t = Instant::now();
+            for k in 0..rounds {
+                let (v, w) = command(k);
+                envs.par_iter_mut().for_each(|env| {
+                    if env.step(v, w).done.is_some() {
+                        env.reset();
+                    }
+                });
+            }
+            (rounds * n) as f64 / t.elapsed().as_secs_f64()
+        })
+    };
+    let one = measure(&rayon::ThreadPoolBuilder::new().num_threads(1).build()?);
+    let all = measure(&rayon::ThreadPoolBuilder::new().num_threads(threads).build()?);
+
+    // One environment on its own (cache-hot), as a lower bound on a step's cost.
     let mut env = NavEnv::new(room.clone(), &cfg.env, 1);
     let t = Instant::now();
     for k in 0..steps {
@@ -172,28 +198,12 @@ fn bench_env(steps: usize) -> anyhow::Result<serde_json::Value> {
             env.reset();
         }
     }
-    let one = steps as f64 / t.elapsed().as_secs_f64();
-
-    let threads = rayon::current_num_threads();
-    // Enough environments per thread that a round outweighs rayon's fork-join cost (~µs).
-    let n = 32 * threads;
-    let seeds: Vec<u64> = (0..n as u64).collect();
-    let mut venv = VecEnv::new(vec![room; n], &cfg.env, &seeds);
-    let rounds = (steps / n).max(1);
-    let t = Instant::now();
-    for k in 0..rounds {
-        let cmds = vec![command(k); n];
-        let outs = venv.step(&cmds);
-        for (i, o) in outs.iter().enumerate() {
-            if o.done.is_some() {
-                venv.envs_mut()[i].reset();
-            }
-        }
-    }
-    let all = (rounds * n) as f64 / t.elapsed().as_secs_f64();
+    let single = steps as f64 / t.elapsed().as_secs_f64();
     Ok(serde_json::json!({
         "env_steps_per_s_1thread": one,
         "env_steps_per_s_all_threads": all,
+        "scaling": all / one,
+        "single_env_steps_per_s": single,
         "threads": threads,
         "envs": n,
         "room": "env0",
