@@ -11,7 +11,7 @@
 //! - [`variable_client`]: [`variable_client::VariableClient`], the newest weights and stage.
 //! - [`episode_logger`]: which episodes go to MCAP.
 //! - [`learner_link`]: connection, registration, delivery with acknowledgements, reconnection.
-//! - [`run`]: a whole actor process for `dvnav actor` and `dvnav train`.
+//! - [`mod@run`]: a whole actor process for `dvnav actor` and `dvnav train`.
 
 pub mod adder;
 pub mod environment_loop;

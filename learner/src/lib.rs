@@ -15,7 +15,7 @@
 //! - [`curriculum`]: the room curriculum rule.
 //! - [`trainer`]: the training thread. [`checkpoint`]: atomic checkpoints and exact resume.
 //! - [`metrics`]: live metrics, Prometheus text over HTTP (`/metrics`) and `metrics.csv`.
-//! - [`run`]: a whole learner process, for `dvnav learner` and `dvnav train`.
+//! - [`mod@run`]: a whole learner process, for `dvnav learner` and `dvnav train`.
 
 pub mod bench;
 pub mod checkpoint;

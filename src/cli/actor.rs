@@ -11,10 +11,10 @@ pub struct ActorArgs {
     /// Learner address, e.g. http://10.0.0.5:50051.
     #[arg(long)]
     pub learner: String,
-    /// Name of this actor, unique within the run (default: actor-<pid>).
+    /// Name of this actor, unique within the run (default: actor-PID).
     #[arg(long)]
     pub name: Option<String>,
-    /// Run directory: MCAP logs under mcap/<name>/, summary under actors/<name>/.
+    /// Run directory: MCAP logs under mcap/NAME/, summary under actors/NAME/.
     #[arg(long, default_value = "runs/actor")]
     pub out: PathBuf,
     /// Keep trying to reach the learner this long at start-up (seconds).

@@ -29,7 +29,7 @@ enum RoomsCommand {
     Show {
         /// A built-in room name (`dvnav rooms list`) or the path of a room file.
         room: String,
-        /// Output PNG; a file with several rooms writes NAME-<room>.png for each.
+        /// Output PNG; a file with several rooms writes NAME-ROOM.png for each.
         #[arg(long, default_value = "room.png")]
         out: PathBuf,
         /// Draw this robot footprint (a footprint TOML file) at the first route's start.

@@ -27,7 +27,7 @@ pub struct TrainArgs {
     /// Seed; overrides run.seed.
     #[arg(long)]
     pub seed: Option<u64>,
-    /// Run directory (must not hold another run). Default: runs/<date>-<time>.
+    /// Run directory (must not hold another run). Default: runs/run-UNIXTIME.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Continue the run in DIR: the learner restarts from DIR's newest checkpoint with DIR's
