@@ -72,7 +72,7 @@ fn endpoint(url: &str) -> anyhow::Result<Endpoint> {
         .keep_alive_while_idle(true))
 }
 
-fn client(channel: Channel, token: Option<&str>) -> anyhow::Result<Client> {
+fn make_client(channel: Channel, token: Option<&str>) -> anyhow::Result<Client> {
     Ok(LearnerClient::with_interceptor(channel, AuthInterceptor::new(token)?)
         .max_decoding_message_size(MAX_MESSAGE_BYTES)
         .max_encoding_message_size(MAX_MESSAGE_BYTES))
@@ -85,7 +85,7 @@ pub async fn connect(url: &str, token: Option<&str>, timeout: Duration) -> anyho
     let mut backoff = Duration::from_millis(100);
     loop {
         match endpoint.connect().await {
-            Ok(c) => return client(c, token),
+            Ok(c) => return make_client(c, token),
             Err(e) if Instant::now() + backoff < deadline => {
                 tracing::debug!(%url, error = %e, ?backoff, "learner not reachable yet; retrying");
                 tokio::time::sleep(backoff).await;
@@ -369,7 +369,7 @@ pub async fn run_link(
             backoff = (backoff * 2).min(MAX_BACKOFF);
             let Ok(ep) = endpoint(&opts.url) else { break None };
             let Ok(channel) = ep.connect().await else { continue };
-            let Ok(mut c) = client_for(channel, &opts) else { break None };
+            let Ok(mut c) = make_client(channel, opts.token.as_deref()) else { break None };
             match register(&mut c, &opts.name).await {
                 Ok(reg) => break Some((c, reg)),
                 Err(e) => tracing::debug!(error = %e, "re-registration failed; retrying"),
@@ -391,10 +391,6 @@ pub async fn run_link(
     let mut c = counters.into_inner().expect("link lock");
     c.transitions_undelivered = outbox.lock().expect("link lock").pending_transitions();
     c
-}
-
-fn client_for(channel: Channel, opts: &LinkOptions) -> anyhow::Result<Client> {
-    client(channel, opts.token.as_deref())
 }
 
 #[cfg(test)]

@@ -132,13 +132,9 @@ fn obstacles(list: &[ObstacleSpec], timestamp: Timestamp) -> SceneEntity {
                 size: size(2.0 * half_extents[0], 2.0 * half_extents[1], h),
                 color: Some(OBSTACLE_COLOR),
             }),
-            ObstacleSpec::Circle { center, radius } => e.cylinders.push(CylinderPrimitive {
-                pose: Some(pose(center[0], center[1], 0.5 * h, 0.0)),
-                size: size(2.0 * radius, 2.0 * radius, h),
-                bottom_scale: 1.0,
-                top_scale: 1.0,
-                color: Some(OBSTACLE_COLOR),
-            }),
+            ObstacleSpec::Circle { center, radius } => {
+                e.cylinders.push(disc(*center, *radius, h, OBSTACLE_COLOR))
+            }
             ObstacleSpec::Polygon { points } => e.triangles.push(prism(points, h)),
             // Parts are never compounds (for_each_primitive flattens them).
             ObstacleSpec::Compound { .. } => {}
@@ -152,13 +148,7 @@ fn robot(radius: f64, timestamp: Timestamp) -> SceneEntity {
     let h = ROBOT_HEIGHT;
     SceneEntity {
         frame_locked: true,
-        cylinders: vec![CylinderPrimitive {
-            pose: Some(pose(0.0, 0.0, 0.5 * h, 0.0)),
-            size: size(2.0 * radius, 2.0 * radius, h),
-            bottom_scale: 1.0,
-            top_scale: 1.0,
-            color: Some(ROBOT_COLOR),
-        }],
+        cylinders: vec![disc([0.0, 0.0], radius, h, ROBOT_COLOR)],
         lines: vec![LinePrimitive {
             r#type: line_primitive::Type::LineStrip as i32,
             pose: Some(pose(0.0, 0.0, h + 0.01, 0.0)),
@@ -178,14 +168,19 @@ fn scaled_footprint(radius: f64, timestamp: Timestamp) -> SceneEntity {
     let h = 0.5 * ROBOT_HEIGHT;
     SceneEntity {
         frame_locked: true,
-        cylinders: vec![CylinderPrimitive {
-            pose: Some(pose(0.0, 0.0, 0.5 * h, 0.0)),
-            size: size(2.0 * radius, 2.0 * radius, h),
-            bottom_scale: 1.0,
-            top_scale: 1.0,
-            color: Some(SCALED_COLOR),
-        }],
+        cylinders: vec![disc([0.0, 0.0], radius, h, SCALED_COLOR)],
         ..entity("scaled_footprint", ROBOT_FRAME, timestamp)
+    }
+}
+
+/// An upright cylinder of `radius` and `height` standing on the floor at `center`.
+fn disc(center: Point, radius: f64, height: f64, color: Color) -> CylinderPrimitive {
+    CylinderPrimitive {
+        pose: Some(pose(center[0], center[1], 0.5 * height, 0.0)),
+        size: size(2.0 * radius, 2.0 * radius, height),
+        bottom_scale: 1.0,
+        top_scale: 1.0,
+        color: Some(color),
     }
 }
 
