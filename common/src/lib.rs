@@ -8,6 +8,8 @@
 //! - [`obs`]: the flat observation layout both processes agree on.
 //! - [`nets`]: the policy and critic networks (candle), one definition for acting and learning.
 //! - [`control`]: the PID warm-up controller.
+//! - [`policy`]: [`policy::NavPolicy`], observation in, velocity out: the trained agent, the
+//!   PID baseline, and what DVST wraps.
 //! - [`core`]: Acme-style seams: [`core::TransitionBatch`], [`core::Adder`],
 //!   [`core::VariableSource`], so an environment loop runs against an in-process learner in
 //!   tests and against the gRPC one in production.
@@ -31,6 +33,7 @@ pub mod core;
 pub mod episode_log;
 pub mod nets;
 pub mod obs;
+pub mod policy;
 pub mod sim;
 pub mod weights;
 pub mod wire;
