@@ -1,7 +1,7 @@
 //! Learner benchmarks behind `dvnav bench learner`: SAC updates per second on random data of
 //! the real observation shape, and policy inference latency.
 
-use crate::replay::{Batch, ReplayBuffer};
+use crate::replay::{Batch, ObsCodec, ReplayBuffer};
 use crate::sac::{SacLearner, SacNetworks};
 use candle_core::{Device, Tensor};
 use dvnav_common::config::Config;
@@ -35,7 +35,7 @@ pub struct LearnerBench {
 
 fn random_replay(cfg: &Config, n: usize, rng: &mut impl Rng) -> ReplayBuffer {
     let d = cfg.obs_dim();
-    let mut replay = ReplayBuffer::new(d, n);
+    let mut replay = ReplayBuffer::new(ObsCodec::for_config(cfg), n);
     let mut b = TransitionBatch::with_capacity(d, n);
     let mut o = vec![0f32; d];
     let mut o2 = vec![0f32; d];
@@ -109,5 +109,120 @@ pub fn sac_updates(
         updates,
         inference_ms_batch1: latency(1)?,
         inference_ms_batch64: latency(64)?,
+    })
+}
+
+/// Figures of `dvnav bench replay`.
+#[derive(Debug, serde::Serialize)]
+pub struct ReplayBench {
+    /// Transitions held after filling.
+    pub transitions: usize,
+    /// Capacity asked for.
+    pub capacity: usize,
+    /// Observations stored for them (ideal: one per transition plus one per episode).
+    pub stored_observations: usize,
+    /// Stored observations per transition.
+    pub observations_per_transition: f64,
+    /// Heap memory of the buffer (MiB).
+    pub memory_mib: f64,
+    /// Bytes per transition held.
+    pub bytes_per_transition: f64,
+    /// What two `f32` copies of each observation would take (MiB), for comparison.
+    pub naive_memory_mib: f64,
+    /// Transitions inserted per second (insertion alone, no simulation).
+    pub insert_per_s: f64,
+    /// Time to sample one minibatch of `batch` (µs).
+    pub sample_us: f64,
+    /// Minibatch size sampled.
+    pub batch: usize,
+}
+
+/// Fills a buffer of `capacity` with transitions of real episodes (env0, 16 environments
+/// driven by the PID controller with noise, batched as an actor batches them) and times
+/// insertion and sampling.
+pub fn replay(cfg: &Config, capacity: usize, batch: usize) -> anyhow::Result<ReplayBench> {
+    use dvnav_common::control::{pid_velocity, velocity_to_action};
+    use dvnav_common::sim::{Room, VecEnv};
+    let n_envs = 16;
+    let room = Room::builtin("env0")?;
+    let seeds: Vec<u64> = (0..n_envs as u64).collect();
+    let mut envs = VecEnv::new(vec![room; n_envs], &cfg.env, &seeds);
+    let d = cfg.obs_dim();
+    let (mut obs, mut next) = (vec![0f32; n_envs * d], vec![0f32; n_envs * d]);
+    envs.write_obs(&mut obs);
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+    let mut replay = ReplayBuffer::new(ObsCodec::for_config(cfg), capacity);
+    let mut tb = TransitionBatch::with_capacity(d, 128);
+    let mut insert_s = 0.0;
+    let mut made = 0;
+    while made < capacity {
+        let commands: Vec<(f64, f64)> = (0..n_envs)
+            .map(|i| {
+                let o =
+                    dvnav_common::obs::ObsView::new(&obs[i * d..(i + 1) * d], cfg.env.lidar.beams);
+                let (v, w) = pid_velocity(
+                    o.goal_distance() as f64,
+                    o.goal_angle() as f64,
+                    &cfg.warmup,
+                    &cfg.env,
+                );
+                (v * rng.random_range(0.5..1.0), w + rng.random_range(-0.5..0.5))
+            })
+            .collect();
+        let outcomes = envs.step(&commands);
+        envs.write_obs(&mut next);
+        for (i, out) in outcomes.iter().enumerate() {
+            let (v, w) = commands[i];
+            let a = velocity_to_action(v, w, &cfg.env);
+            let done = out.done;
+            let terminated = done.is_some_and(|o| o.is_terminal());
+            let truncated = done.is_some() && !terminated;
+            tb.push(
+                &obs[i * d..(i + 1) * d],
+                a,
+                out.reward,
+                &next[i * d..(i + 1) * d],
+                terminated,
+                truncated,
+                0,
+            );
+            if done.is_some() {
+                envs.reset(i);
+                envs.envs()[i].write_obs(&mut next[i * d..(i + 1) * d]);
+            }
+            made += 1;
+            if tb.len() == 128 {
+                let t = Instant::now();
+                replay.insert(&tb);
+                insert_s += t.elapsed().as_secs_f64();
+                tb.clear();
+            }
+        }
+        std::mem::swap(&mut obs, &mut next);
+    }
+    let t = Instant::now();
+    replay.insert(&tb);
+    insert_s += t.elapsed().as_secs_f64();
+    let mut b = Batch::default();
+    replay.sample_into(batch, &mut rng, &mut b);
+    let reps = 200;
+    let t = Instant::now();
+    for _ in 0..reps {
+        replay.sample_into(batch, &mut rng, &mut b);
+    }
+    let sample_us = t.elapsed().as_secs_f64() * 1e6 / reps as f64;
+    let mib = |b: usize| b as f64 / (1 << 20) as f64;
+    let naive = replay.len() * (2 * d * 4 + 2 * 4 + 4 + 1);
+    Ok(ReplayBench {
+        transitions: replay.len(),
+        capacity,
+        stored_observations: replay.stored_observations(),
+        observations_per_transition: replay.stored_observations() as f64 / replay.len() as f64,
+        memory_mib: mib(replay.memory_bytes()),
+        bytes_per_transition: replay.memory_bytes() as f64 / replay.len() as f64,
+        naive_memory_mib: mib(naive),
+        insert_per_s: made as f64 / insert_s,
+        sample_us,
+        batch,
     })
 }

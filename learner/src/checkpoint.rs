@@ -15,7 +15,7 @@
 //! (`learner/tests/sac/resume.rs`).
 
 use crate::curriculum::CurriculumState;
-use crate::replay::ReplayBuffer;
+use crate::replay::{ObsCodec, ReplayBuffer};
 use crate::sac::SacLearner;
 use crate::state::LearnerState;
 use candle_core::Tensor;
@@ -98,7 +98,7 @@ impl Checkpoint {
     ) -> anyhow::Result<Option<rand_pcg::Pcg64>> {
         self.restore_learner(learner)?;
         let cfg = state.config();
-        let replay = match self.replay(cfg.obs_dim(), cfg.replay.capacity) {
+        let replay = match self.replay(ObsCodec::for_config(cfg), cfg.replay.capacity) {
             Some(Ok(r)) => Some(r),
             Some(Err(e)) => {
                 tracing::warn!(error = %e, "the checkpoint's replay buffer cannot be used; refilling it");
@@ -111,9 +111,9 @@ impl Checkpoint {
     }
 
     /// The saved replay buffer, if this checkpoint holds one.
-    pub fn replay(&self, obs_dim: usize, capacity: usize) -> Option<anyhow::Result<ReplayBuffer>> {
+    pub fn replay(&self, codec: ObsCodec, capacity: usize) -> Option<anyhow::Result<ReplayBuffer>> {
         let path = self.dir.join(REPLAY_FILE);
-        path.exists().then(|| ReplayBuffer::load(&path, obs_dim, capacity))
+        path.exists().then(|| ReplayBuffer::load(&path, codec, capacity))
     }
 }
 

@@ -4,7 +4,7 @@
 
 use crate::curriculum::{Curriculum, StageChange};
 use crate::rate_limiter::RateLimiter;
-use crate::replay::{Batch, ReplayBuffer};
+use crate::replay::{Batch, ObsCodec, ReplayBuffer};
 use crate::variable_source::VariableSource;
 use dvnav_common::config::Config;
 use dvnav_common::core::{Outcome, Variables};
@@ -175,7 +175,6 @@ impl LearnerState {
         token: Option<String>,
         initial_policy: Vec<u8>,
     ) -> Self {
-        let obs_dim = cfg.obs_dim();
         let curriculum = Curriculum::new(cfg.curriculum.clone());
         let variables = VariableSource::new(Variables {
             version: 1,
@@ -191,7 +190,7 @@ impl LearnerState {
                 cfg.sac.learning_starts,
                 cfg.learner.max_steps_ahead,
             ),
-            replay: Mutex::new(ReplayBuffer::new(obs_dim, cfg.replay.capacity)),
+            replay: Mutex::new(ReplayBuffer::new(ObsCodec::for_config(&cfg), cfg.replay.capacity)),
             counters: Mutex::new(Counters {
                 next_actor_id: 0,
                 actors: BTreeMap::new(),

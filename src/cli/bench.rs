@@ -36,6 +36,19 @@ enum BenchWhat {
         #[arg(long)]
         json: bool,
     },
+    /// Replay buffer: memory per transition and observations stored per transition when
+    /// filled from real episodes (env0, PID with noise), insertion rate, and sampling time.
+    Replay {
+        /// Transitions to fill (the paper's buffer: 500,000, ~0.6 GB).
+        #[arg(long, default_value_t = 500_000)]
+        capacity: usize,
+        /// Minibatch size sampled.
+        #[arg(long, default_value_t = 256)]
+        batch: usize,
+        /// Print one JSON object.
+        #[arg(long)]
+        json: bool,
+    },
     /// SAC updates/s at a batch size, and policy inference latency at batch 1 and 64.
     Learner {
         /// Config whose network and SAC settings are measured (default: the defaults).
@@ -108,6 +121,25 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
                     r["transitions_per_s"].as_f64().unwrap_or(0.0),
                     r["mb_per_s"].as_f64().unwrap_or(0.0),
                     batch
+                );
+            }
+        }
+        BenchWhat::Replay { capacity, batch, json } => {
+            let cfg = dvnav_common::config::Config::default();
+            let r = dvnav_learner::bench::replay(&cfg, capacity, batch)?;
+            if json {
+                println!("{}", serde_json::to_string(&r)?);
+            } else {
+                println!(
+                    "replay: {} transitions in {:.0} MiB ({:.0} B each; two f32 copies: {:.0} MiB), {:.3} observations per transition, {:.0} inserts/s, {:.0} µs per batch of {}",
+                    r.transitions,
+                    r.memory_mib,
+                    r.bytes_per_transition,
+                    r.naive_memory_mib,
+                    r.observations_per_transition,
+                    r.insert_per_s,
+                    r.sample_us,
+                    r.batch
                 );
             }
         }
