@@ -8,11 +8,13 @@
 //!
 //! Design decisions:
 //! - **Convolutions as unfold + matmul, channels last.** candle's CPU `conv1d` and its backward
-//!   pass (a transposed convolution) dominate an update on a CPU. Written as an `index_select`
-//!   unfold followed by one matmul, both directions are matmuls and a scatter-add, which candle
-//!   does fast. Activations stay `(batch, length, channels)` so the unfold needs no transpose.
+//!   pass (a transposed convolution) dominate an update on a CPU. Written as an im2col
+//!   unfold followed by one matmul, both directions are matmuls and a copy/accumulate
+//!   ([`crate::fused`]). Activations stay `(batch, length, channels)` so the unfold needs no transpose.
 //!   Weights keep PyTorch's `(out, in, kernel)` layout in safetensors; only the flatten order
 //!   before the first linear layer (length-major) differs from a channels-first network.
+//! - **Fused epilogues.** Bias + activation is one pass forward and one backward
+//!   ([`crate::fused::bias_act`]); see that module for the profile that motivated it.
 //! - **Seeded initialisation.** candle's CPU RNG cannot be seeded, so [`init_seeded`] redraws
 //!   every variable from our own seeded generator with PyTorch's default bounds
 //!   (U(−1/√fan_in, 1/√fan_in)); the same seed gives the same network.
@@ -26,14 +28,9 @@ use candle_nn::{Linear, VarBuilder, VarMap};
 use rand::{Rng, SeedableRng};
 
 /// Slope of the LeakyReLU after the convolutions.
-const LEAKY_SLOPE: f64 = 0.01;
+const LEAKY_SLOPE: f32 = 0.01;
 /// Smallest value of d + a in the reciprocal preprocessing; keeps 1/(d + a) finite.
 const RECIPROCAL_FLOOR: f64 = 1e-2;
-
-fn leaky_relu(x: &Tensor) -> Result<Tensor> {
-    // max(x, s·x) equals LeakyReLU for 0 < s < 1, in two ops instead of candle's five.
-    x.maximum(&(x * LEAKY_SLOPE)?)
-}
 
 /// softplus(x) = max(x, 0) + log(1 + exp(−|x|)), stable for large |x|.
 pub fn softplus(x: &Tensor) -> Result<Tensor> {
@@ -47,10 +44,10 @@ pub fn softplus(x: &Tensor) -> Result<Tensor> {
 pub struct Conv1dUnfold {
     weight: Tensor,
     bias: Tensor,
-    index: Tensor,
     in_channels: usize,
     out_channels: usize,
     kernel: usize,
+    stride: usize,
     out_len: usize,
 }
 
@@ -73,10 +70,7 @@ impl Conv1dUnfold {
             candle_core::bail!("conv input of {in_len} positions is shorter than kernel {kernel}");
         }
         let out_len = (in_len - kernel) / stride + 1;
-        let idx: Vec<u32> =
-            (0..out_len).flat_map(|j| (0..kernel).map(move |k| (j * stride + k) as u32)).collect();
-        let index = Tensor::from_vec(idx, out_len * kernel, vb.device())?;
-        Ok(Self { weight, bias, index, in_channels, out_channels, kernel, out_len })
+        Ok(Self { weight, bias, in_channels, out_channels, kernel, stride, out_len })
     }
 
     /// Output positions.
@@ -85,12 +79,12 @@ impl Conv1dUnfold {
     }
 }
 
-impl Module for Conv1dUnfold {
-    /// `(batch, in_len, in_channels)` → `(batch, out_len, out_channels)`.
-    fn forward(&self, x: &Tensor) -> Result<Tensor> {
+impl Conv1dUnfold {
+    /// `(batch, in_len, in_channels)` → the products with the kernel, before the bias,
+    /// `(batch·out_len, out_channels)`.
+    fn products(&self, x: &Tensor) -> Result<Tensor> {
         let b = x.dim(0)?;
-        let cols = x
-            .index_select(&self.index, 1)?
+        let cols = crate::fused::unfold(x, self.kernel, self.stride)?
             .reshape((b * self.out_len, self.kernel * self.in_channels))?;
         // (out, in, k) → (k, in, out) → (k·in, out): rows in the unfold's (position, channel) order.
         let w = self
@@ -98,7 +92,34 @@ impl Module for Conv1dUnfold {
             .permute((2, 1, 0))?
             .contiguous()?
             .reshape((self.kernel * self.in_channels, self.out_channels))?;
-        cols.matmul(&w)?.broadcast_add(&self.bias)?.reshape((b, self.out_len, self.out_channels))
+        cols.matmul(&w)
+    }
+
+    /// The convolution followed by a leaky ReLU of `slope`, fused with the bias.
+    pub fn forward_act(&self, x: &Tensor, slope: f32) -> Result<Tensor> {
+        let b = x.dim(0)?;
+        crate::fused::bias_act(&self.products(x)?, &self.bias, slope)?.reshape((
+            b,
+            self.out_len,
+            self.out_channels,
+        ))
+    }
+}
+
+impl Module for Conv1dUnfold {
+    /// `(batch, in_len, in_channels)` → `(batch, out_len, out_channels)`.
+    fn forward(&self, x: &Tensor) -> Result<Tensor> {
+        let b = x.dim(0)?;
+        self.products(x)?.broadcast_add(&self.bias)?.reshape((b, self.out_len, self.out_channels))
+    }
+}
+
+/// `act(x·Wᵀ + b)` for a 2-D `x` and a candle `Linear`, bias and activation fused.
+fn linear_act(layer: &Linear, x: &Tensor, slope: f32) -> Result<Tensor> {
+    let h = x.matmul(&layer.weight().t()?)?;
+    match layer.bias() {
+        Some(b) => crate::fused::bias_act(&h, b, slope),
+        None => candle_core::bail!("linear layer without a bias"),
     }
 }
 
@@ -145,10 +166,9 @@ impl Module for ScanEncoder {
         let b = scan.dim(0)?;
         let x = scan.broadcast_add(&self.offset)?.clamp(RECIPROCAL_FLOOR, f64::MAX)?.recip()?;
         let x = x.reshape((b, self.beams, 1))?;
-        let x = leaky_relu(&self.conv1.forward(&x)?)?;
-        let x = leaky_relu(&self.conv2.forward(&x)?)?;
-        let x = x.flatten_from(1)?;
-        leaky_relu(&self.fc.forward(&x)?)
+        let x = self.conv1.forward_act(&x, LEAKY_SLOPE)?;
+        let x = self.conv2.forward_act(&x, LEAKY_SLOPE)?;
+        linear_act(&self.fc, &x.flatten_from(1)?, LEAKY_SLOPE)
     }
 }
 
@@ -217,8 +237,8 @@ impl Actor {
     pub fn forward(&self, obs: &Tensor) -> Result<(Tensor, Tensor)> {
         let (scan, extra) = split_obs(obs, self.beams)?;
         let h = Tensor::cat(&[self.encoder.forward(&scan)?, extra], 1)?;
-        let h = self.fc1.forward(&h)?.relu()?;
-        let h = self.fc2.forward(&h)?.relu()?;
+        let h = linear_act(&self.fc1, &h, 0.0)?;
+        let h = linear_act(&self.fc2, &h, 0.0)?;
         let mean = self.mean.forward(&h)?;
         let half = 0.5 * (self.log_std_max - self.log_std_min);
         let log_std = ((self.log_std.forward(&h)?.tanh()? + 1.0)? * half)? + self.log_std_min;
@@ -295,8 +315,8 @@ impl Critic {
 
     fn head(&self, features: &Tensor, extra: &Tensor, action: &Tensor) -> Result<Tensor> {
         let h = Tensor::cat(&[features, extra, action], 1)?;
-        let h = self.fc1.forward(&h)?.relu()?;
-        let h = self.fc2.forward(&h)?.relu()?;
+        let h = linear_act(&self.fc1, &h, 0.0)?;
+        let h = linear_act(&self.fc2, &h, 0.0)?;
         self.q.forward(&h)?.squeeze(1)
     }
 }
