@@ -2,8 +2,8 @@
 //!
 //! Each subcommand is a thin layer over the library crates: `train` supervises a learner and N
 //! actor processes on this machine; `learner` and `actor` are those two roles on their own, for
-//! runs across machines; `inspect` reads MCAP episode logs and `plot` draws them
-//! ([`render`]).
+//! runs across machines; `eval` evaluates a checkpoint (rooms, routes, the gate and dynamic
+//! scenarios); `inspect` reads MCAP episode logs and `plot` draws them ([`render`]).
 
 mod cli;
 mod render;

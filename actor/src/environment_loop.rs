@@ -13,7 +13,7 @@ use dvnav_common::core::{Adder, EpisodeStats, Outcome, VariableSource, score};
 use dvnav_common::obs::{ACTION_DIM, GOAL_ANGLE, GOAL_DISTANCE};
 use dvnav_common::sim::{Room, VecEnv};
 use dvnav_common::weights::PolicyHandle;
-use rand::SeedableRng;
+use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, StandardNormal};
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -172,7 +172,27 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
     }
 
     /// Starts a new episode in environment `i` (already reset or fresh) and logs its start.
+    /// The stage of the next episode: the learner's, or with probability
+    /// `curriculum.earlier_share` a uniformly drawn earlier one.
+    fn pick_stage(&mut self) -> u32 {
+        let share = self.cfg.curriculum.earlier_share;
+        if self.stage > 0 && share > 0.0 && self.rng.random_bool(share) {
+            self.rng.random_range(0..self.stage)
+        } else {
+            self.stage
+        }
+    }
+
     fn new_episode(&mut self, i: usize, warmup: bool) -> anyhow::Result<EpisodeInfo> {
+        self.new_episode_in(i, warmup, self.stage)
+    }
+
+    fn new_episode_in(
+        &mut self,
+        i: usize,
+        warmup: bool,
+        stage: u32,
+    ) -> anyhow::Result<EpisodeInfo> {
         let id = self.next_episode_id;
         self.next_episode_id += 1;
         let driver = if warmup { Driver::Pid } else { Driver::Policy };
@@ -181,7 +201,7 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
             let env = &self.envs.envs()[i];
             logged = l.maybe_begin(i, id, env, &self.cfg)?;
         }
-        Ok(EpisodeInfo { id, stage: self.stage, driver, logged })
+        Ok(EpisodeInfo { id, stage, driver, logged })
     }
 
     /// One step of every environment. Returns false when the learner says stop.
@@ -296,8 +316,12 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
                     self.counters.warmup_episodes += 1;
                 }
                 self.adder.add_episode(stats)?;
+                let stage = self.pick_stage();
+                let name = self.cfg.curriculum.rooms[stage as usize].clone();
+                let room = self.room(&name)?;
+                self.envs.envs_mut()[i].set_room(room);
                 self.envs.envs_mut()[i].reset();
-                self.episodes[i] = self.new_episode(i, warmup)?;
+                self.episodes[i] = self.new_episode_in(i, warmup, stage)?;
                 self.envs.envs()[i].write_obs(&mut self.next_obs[i * d..(i + 1) * d]);
             }
         }
@@ -396,14 +420,25 @@ mod tests {
     }
 
     fn run(warmup: bool, steps: usize, seed: u64) -> (TransitionBatch, LoopCounters) {
+        run_at(warmup, steps, seed, 0, 0.0)
+    }
+
+    fn run_at(
+        warmup: bool,
+        steps: usize,
+        seed: u64,
+        stage: u32,
+        earlier_share: f64,
+    ) -> (TransitionBatch, LoopCounters) {
         let mut cfg = Config::default();
         cfg.actor.envs = 3;
         cfg.env.max_steps = 60;
+        cfg.curriculum.earlier_share = earlier_share;
         let vars = Variables {
             version: 3,
             policy: Arc::new(policy_bytes(&cfg)),
-            stage: 0,
-            room: "env0".into(),
+            stage,
+            room: cfg.curriculum.rooms[stage as usize].clone(),
             warmup,
             stop: false,
         };
@@ -451,6 +486,25 @@ mod tests {
         assert!(b.episodes.iter().all(|e| e.steps <= 60));
         let ends = b.terminated.iter().zip(&b.truncated).filter(|(t, u)| **t || **u).count();
         assert_eq!(ends as u64, c.episodes);
+    }
+
+    #[test]
+    fn a_share_of_episodes_runs_in_earlier_rooms() {
+        // Stage 2 with half the episodes in earlier rooms: after the first episodes (which
+        // start in the assigned room), every stage up to 2 shows up, each in its own room.
+        let (b, _) = run_at(false, 600, 3, 2, 0.5);
+        let stages: std::collections::BTreeSet<u32> = b.episodes.iter().map(|e| e.stage).collect();
+        assert_eq!(stages.into_iter().collect::<Vec<_>>(), vec![0, 1, 2], "{}", b.episodes.len());
+        for e in &b.episodes {
+            assert_eq!(e.room, format!("env{}", e.stage));
+        }
+        // Without a share, everything after each environment's first episode (begun before
+        // the loop heard of stage 2) runs in the assigned room.
+        let (b, _) = run_at(false, 300, 3, 2, 0.0);
+        let mut seen = std::collections::HashSet::new();
+        let later: Vec<_> = b.episodes.iter().filter(|e| !seen.insert(e.env_index)).collect();
+        assert!(!later.is_empty());
+        assert!(later.iter().all(|e| e.stage == 2 && e.room == "env2"));
     }
 
     #[test]

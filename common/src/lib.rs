@@ -6,10 +6,13 @@
 //! - [`sim`]: the rapier2d rooms, the robot, the LiDAR, rewards and termination, and
 //!   [`sim::VecEnv`] that steps many environments in parallel with rayon.
 //! - [`obs`]: the flat observation layout both processes agree on.
-//! - [`nets`]: the policy and critic networks (candle), one definition for acting and learning.
+//! - [`nets`]: the policy and critic networks (candle), one definition for acting and learning;
+//!   [`fused`]: their fused CPU kernels.
 //! - [`control`]: the PID warm-up controller.
 //! - [`policy`]: [`policy::NavPolicy`], observation in, velocity out: the trained agent, the
 //!   PID baseline, and what DVST wraps.
+//! - [`dvst`]: dimension-variable skill transfer: the meta robot, μ, the varied-robot file,
+//!   observation and policy transfer, and [`dvst::Dvst`] that wraps any policy.
 //! - [`core`]: Acme-style seams: [`core::TransitionBatch`], [`core::Adder`],
 //!   [`core::VariableSource`], so an environment loop runs against an in-process learner in
 //!   tests and against the gRPC one in production.
@@ -17,6 +20,9 @@
 //! - [`wire`]: proto ⇄ domain conversions that validate untrusted input.
 //! - [`episode_log`]: MCAP episode logs with Foxglove schemas, and the reader behind
 //!   `dvnav inspect`.
+//! - [`eval`]: policy evaluation: episodes, the evaluation-route protocol and the paper's
+//!   score S, per-room rates, the gate and dynamic scenarios (`dvnav eval`, and the learner's
+//!   evaluation during training).
 //!
 //! `common` never depends on the actor or the learner crates.
 //!
@@ -30,7 +36,10 @@
 pub mod config;
 pub mod control;
 pub mod core;
+pub mod dvst;
 pub mod episode_log;
+pub mod eval;
+pub mod fused;
 pub mod nets;
 pub mod obs;
 pub mod policy;

@@ -19,6 +19,18 @@ pub trait NavPolicy {
     fn act(&mut self, obs: &[f32]) -> anyhow::Result<(f64, f64)>;
     /// Linear and angular speed bounds (v_max, ω_max) the policy was made for.
     fn velocity_bounds(&self) -> (f64, f64);
+    /// Commands for several observations laid out back to back (`n · obs_dim(beams)` values),
+    /// in order. By default one [`act`](Self::act) each; a network overrides it with one
+    /// forward pass for all, which is how evaluation steps many environments in lockstep
+    /// ([`crate::eval`]).
+    fn act_batch(&mut self, obs: &[f32]) -> anyhow::Result<Vec<(f64, f64)>> {
+        let d = obs_dim(self.beams());
+        anyhow::ensure!(
+            obs.len().is_multiple_of(d),
+            "observation batch is not a multiple of {d} values"
+        );
+        obs.chunks_exact(d).map(|o| self.act(o)).collect()
+    }
 }
 
 /// The trained meta agent acting deterministically: a = tanh(μ(s)), mapped to velocities within
@@ -46,11 +58,7 @@ impl MetaAgent {
         let file = if path.is_dir() { path.join("policy.safetensors") } else { path.to_path_buf() };
         let dir = file.parent().unwrap_or(Path::new("."));
         let cfg_file = dir.join("config.toml");
-        let cfg = if cfg_file.exists() {
-            Config::load(&cfg_file)?
-        } else {
-            Config::default()
-        };
+        let cfg = if cfg_file.exists() { Config::load(&cfg_file)? } else { Config::default() };
         let bytes = std::fs::read(&file)
             .with_context(|| format!("{}: cannot read the policy weights", file.display()))?;
         let agent = Self::from_safetensors(&bytes, &cfg)
@@ -66,7 +74,10 @@ impl MetaAgent {
     /// Deterministic commands for a batch of observations laid out back to back.
     pub fn act_batch(&self, obs: &[f32]) -> anyhow::Result<Vec<(f64, f64)>> {
         let d = obs_dim(self.beams);
-        anyhow::ensure!(obs.len() % d == 0, "observation batch is not a multiple of {d} values");
+        anyhow::ensure!(
+            obs.len().is_multiple_of(d),
+            "observation batch is not a multiple of {d} values"
+        );
         let n = obs.len() / d;
         let t = Tensor::from_slice(obs, (n, d), &Device::Cpu)?;
         let a = self.actor.deterministic(&t)?.to_vec2::<f32>()?;
@@ -87,6 +98,10 @@ impl NavPolicy for MetaAgent {
 
     fn velocity_bounds(&self) -> (f64, f64) {
         (self.env.v_max, self.env.omega_max)
+    }
+
+    fn act_batch(&mut self, obs: &[f32]) -> anyhow::Result<Vec<(f64, f64)>> {
+        MetaAgent::act_batch(self, obs)
     }
 }
 

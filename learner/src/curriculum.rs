@@ -28,6 +28,9 @@ pub struct CurriculumState {
     pub recent: Vec<bool>,
     /// Stage changes so far.
     pub changes: Vec<StageChange>,
+    /// When the last room first reached the threshold over a full window ("time to skill").
+    #[serde(default)]
+    pub skilled: Option<StageChange>,
 }
 
 /// Curriculum state owned by the learner.
@@ -37,12 +40,13 @@ pub struct Curriculum {
     stage: u32,
     recent: VecDeque<bool>,
     changes: Vec<StageChange>,
+    skilled: Option<StageChange>,
 }
 
 impl Curriculum {
     /// Starts at stage 0.
     pub fn new(cfg: CurriculumConfig) -> Self {
-        Self { cfg, stage: 0, recent: VecDeque::new(), changes: Vec::new() }
+        Self { cfg, stage: 0, recent: VecDeque::new(), changes: Vec::new(), skilled: None }
     }
 
     /// Continues from a checkpoint's state; the stage is clamped to the configured rooms.
@@ -52,7 +56,7 @@ impl Curriculum {
         while recent.len() > cfg.window {
             recent.pop_front();
         }
-        Self { cfg, stage, recent, changes: state.changes }
+        Self { cfg, stage, recent, changes: state.changes, skilled: state.skilled }
     }
 
     /// The state a checkpoint keeps.
@@ -61,6 +65,7 @@ impl Curriculum {
             stage: self.stage,
             recent: self.recent.iter().copied().collect(),
             changes: self.changes.clone(),
+            skilled: self.skilled.clone(),
         }
     }
 
@@ -88,6 +93,11 @@ impl Curriculum {
         &self.changes
     }
 
+    /// When the last room first reached the threshold over a full window, if it has.
+    pub fn skilled(&self) -> Option<&StageChange> {
+        self.skilled.as_ref()
+    }
+
     /// Records a finished episode; returns the stage change it caused, if any.
     pub fn record(
         &mut self,
@@ -105,10 +115,17 @@ impl Curriculum {
             self.recent.pop_front();
         }
         let last = self.cfg.rooms.len() as u32 - 1;
-        if self.stage < last
-            && self.recent.len() == self.cfg.window
-            && self.success_rate() >= self.cfg.threshold
-        {
+        let passed =
+            self.recent.len() == self.cfg.window && self.success_rate() >= self.cfg.threshold;
+        if passed && self.stage == last && self.skilled.is_none() {
+            self.skilled = Some(StageChange {
+                stage: self.stage,
+                room: self.room().to_string(),
+                env_steps,
+                updates,
+            });
+        }
+        if self.stage < last && passed {
             self.stage += 1;
             self.recent.clear();
             let change = StageChange {
@@ -129,7 +146,12 @@ mod tests {
     use super::*;
 
     fn cfg() -> CurriculumConfig {
-        CurriculumConfig { rooms: vec!["a".into(), "b".into()], window: 4, threshold: 0.75 }
+        CurriculumConfig {
+            rooms: vec!["a".into(), "b".into()],
+            window: 4,
+            threshold: 0.75,
+            ..Default::default()
+        }
     }
 
     #[test]
@@ -142,10 +164,12 @@ mod tests {
         let ch = c.record(0, true, false, 100, 7).unwrap();
         assert_eq!((ch.stage, ch.room.as_str(), ch.env_steps), (1, "b", 100));
         assert_eq!(c.stage(), 1);
-        // The last stage stays.
-        for _ in 0..8 {
-            assert_eq!(c.record(1, true, false, 0, 0), None);
+        // The last stage stays; the first full window at the threshold there is the skill.
+        for k in 0..8 {
+            assert_eq!(c.record(1, true, false, 200 + k, 0), None);
         }
+        assert_eq!(c.skilled().map(|s| (s.stage, s.env_steps)), Some((1, 203)));
+        assert_eq!(c.snapshot().skilled, c.skilled().cloned());
     }
 
     #[test]

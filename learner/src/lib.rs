@@ -13,6 +13,8 @@
 //! - [`sac`]: networks, Adam, the losses ([`sac::learning`]) and [`sac::SacLearner`].
 //! - [`variable_source`]: versioned weights out to actors.
 //! - [`curriculum`]: the room curriculum rule.
+//! - [`evaluator`]: the evaluation protocol during training (routes and random episodes of
+//!   every curriculum room, on its own thread) into `eval.csv`.
 //! - [`trainer`]: the training thread. [`checkpoint`]: atomic checkpoints and exact resume.
 //! - [`metrics`]: live metrics, Prometheus text over HTTP (`/metrics`) and `metrics.csv`.
 //! - [`mod@run`]: a whole learner process, for `dvnav learner` and `dvnav train`.
@@ -20,6 +22,7 @@
 pub mod bench;
 pub mod checkpoint;
 pub mod curriculum;
+pub mod evaluator;
 pub mod metrics;
 pub mod rate_limiter;
 pub mod replay;

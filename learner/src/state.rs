@@ -12,6 +12,7 @@ use dvnav_common::wire::{self, WireError};
 use dvnav_proto as pb;
 use serde::Serialize;
 use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use tokio::sync::watch;
 
@@ -60,6 +61,10 @@ pub struct ActorCounters {
     pub batches: u64,
     /// A transition stream is open.
     pub connected: bool,
+    /// Transition streams open for this actor id (a restarted process under the same name may
+    /// open its stream before the learner has seen the old one end).
+    #[serde(skip)]
+    pub open_streams: u32,
     /// Registrations (more than 1 after reconnects).
     pub registrations: u64,
     /// Smallest and largest weight version seen on this actor's transitions (0: PID).
@@ -113,6 +118,8 @@ pub struct StatusSnapshot {
     pub actors: Vec<ActorCounters>,
     /// Stage changes so far.
     pub stage_changes: Vec<StageChange>,
+    /// When the last room first reached the threshold over a full window.
+    pub skilled: Option<StageChange>,
     /// Every loss seen so far was finite.
     pub losses_finite: bool,
     /// Rates, policy lag and per-stage outcomes ([`crate::metrics`]).
@@ -143,6 +150,17 @@ pub struct Registration {
     pub next_sequence: u64,
 }
 
+/// Whether the learner takes actors now (`GET /readyz`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Readiness {
+    /// The gRPC service is not up yet.
+    Starting,
+    /// Serving: actors may register and stream.
+    Ready,
+    /// The step budget is reached or shutdown began: no new actors wanted.
+    Finished,
+}
+
 /// The learner's answer to one batch.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Ack {
@@ -165,6 +183,7 @@ pub struct LearnerState {
     done_tx: watch::Sender<bool>,
     shutdown_tx: watch::Sender<bool>,
     live: crate::metrics::LiveMetrics,
+    serving: AtomicBool,
 }
 
 impl LearnerState {
@@ -210,6 +229,7 @@ impl LearnerState {
             done_tx: watch::channel(false).0,
             shutdown_tx: watch::channel(false).0,
             live: Default::default(),
+            serving: AtomicBool::new(false),
         }
     }
 
@@ -292,10 +312,31 @@ impl LearnerState {
         &self.config_toml
     }
 
-    /// Marks an actor's transition stream open or closed.
-    pub fn set_connected(&self, actor_id: u32, connected: bool) {
-        if let Some(a) = self.counters.lock().expect("counters lock").actors.get_mut(&actor_id) {
-            a.connected = connected;
+    /// Marks a transition stream of an actor opened or closed; the actor counts as connected
+    /// while any of its streams is open. Returns the actor's counters after the change.
+    pub fn set_connected(&self, actor_id: u32, connected: bool) -> Option<ActorCounters> {
+        let mut c = self.counters.lock().expect("counters lock");
+        let a = c.actors.get_mut(&actor_id)?;
+        a.open_streams =
+            if connected { a.open_streams + 1 } else { a.open_streams.saturating_sub(1) };
+        a.connected = a.open_streams > 0;
+        Some(a.clone())
+    }
+
+    /// Records that a gRPC service serves this state (see [`LearnerState::readiness`]).
+    pub fn set_serving(&self) {
+        self.serving.store(true, Ordering::SeqCst);
+    }
+
+    /// Whether the learner takes actors now: ready from the moment its gRPC service exists
+    /// until the step budget is reached or shutdown begins.
+    pub fn readiness(&self) -> Readiness {
+        if *self.shutdown_tx.borrow() || *self.done_tx.borrow() {
+            Readiness::Finished
+        } else if self.serving.load(Ordering::SeqCst) {
+            Readiness::Ready
+        } else {
+            Readiness::Starting
         }
     }
 
@@ -327,7 +368,22 @@ impl LearnerState {
                 return Err(e.into());
             }
         };
+        // Cancelling this future here (the actor's stream broke while the batch waited) leaves
+        // nothing behind: the batch is neither inserted nor counted, and the actor, which got
+        // no acknowledgement, resends it if it is still alive.
         self.limiter.wait_to_insert().await;
+        {
+            // Claim the sequence number before inserting: a second stream of the same actor
+            // id (a restarted process, or a reconnect before the old stream ended) may have
+            // inserted this batch while it waited.
+            let mut c = self.counters.lock().expect("counters lock");
+            let a = c.actors.get_mut(&actor_id).ok_or(LearnerError::UnknownActor(actor_id))?;
+            if sequence < a.next_sequence {
+                a.duplicate_batches += 1;
+                return Ok(Ack { accepted: 0, duplicate: true });
+            }
+            a.next_sequence = sequence + 1;
+        }
         self.replay.lock().expect("replay lock").insert(&batch);
         let n = batch.len() as u64;
         self.limiter.inserted(n);
@@ -340,7 +396,6 @@ impl LearnerState {
         let a = c.actors.get_mut(&actor_id).expect("checked above");
         a.transitions_received += n;
         a.batches += 1;
-        a.next_sequence = sequence + 1;
         a.episodes += batch.episodes.len() as u64;
         for &v in &batch.policy_versions {
             a.min_policy_version = a.min_policy_version.min(v);
@@ -353,6 +408,7 @@ impl LearnerState {
                 Outcome::Timeout => a.timeouts += 1,
             }
         }
+        let was_skilled = c.curriculum.skilled().is_some();
         for e in &batch.episodes {
             c.episodes += 1;
             let success = e.outcome == Outcome::Success;
@@ -360,14 +416,26 @@ impl LearnerState {
             {
                 tracing::info!(stage = change.stage, room = %change.room, env_steps = received, "curriculum: next stage");
             }
+            if !was_skilled && let Some(s) = c.curriculum.skilled() {
+                tracing::info!(room = %s.room, env_steps = s.env_steps, updates = s.updates, "curriculum: last room at the threshold (skilled)");
+            }
         }
-        if received >= self.cfg.run.steps && !c.done {
+        let skilled_stop =
+            self.cfg.curriculum.stop_when_skilled && c.curriculum.skilled().is_some();
+        if (received >= self.cfg.run.steps || skilled_stop) && !c.done {
             c.done = true;
-            tracing::info!(
-                received,
-                budget = self.cfg.run.steps,
-                "step budget reached; stopping actors"
-            );
+            if skilled_stop {
+                tracing::info!(
+                    received,
+                    "skilled and curriculum.stop_when_skilled; stopping actors"
+                );
+            } else {
+                tracing::info!(
+                    received,
+                    budget = self.cfg.run.steps,
+                    "step budget reached; stopping actors"
+                );
+            }
             self.done_tx.send_replace(true);
             // Training ends with the budget; what actors still have in flight is accepted
             // without waiting, so they can flush and leave.
@@ -502,6 +570,7 @@ impl LearnerState {
                 })
                 .collect(),
             stage_changes: c.curriculum.changes().to_vec(),
+            skilled: c.curriculum.skilled().cloned(),
             losses_finite: c.losses_finite,
             live: self.live.snapshot(),
         }

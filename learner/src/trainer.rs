@@ -1,7 +1,9 @@
 //! The training loop, on its own thread: wait for the rate limiter, sample, update, publish
-//! weights every `publish_every_updates`, checkpoint every `checkpoint_every_updates`.
+//! weights every `publish_every_updates`, hand a snapshot of the policy to the evaluator every
+//! `eval_every_updates`, checkpoint every `checkpoint_every_updates`.
 
 use crate::checkpoint::{self, CheckpointMeta};
+use crate::evaluator::{Evaluator, Snapshot};
 use crate::replay::Batch;
 use crate::sac::{SacLearner, UpdateMetrics};
 use crate::state::LearnerState;
@@ -27,6 +29,7 @@ pub fn train(
     let cfg = state.config().clone();
     let mut batch = Batch::default();
     let limiter = state.limiter();
+    let evaluator = Evaluator::start(&cfg, &out_dir)?;
     loop {
         if !limiter.wait_to_update(Duration::from_millis(200)) {
             if limiter.is_closed() {
@@ -36,14 +39,32 @@ pub fn train(
         }
         train_step(&state, &mut learner, &mut rng, &mut batch)?;
         let updates = learner.updates();
+        let eval_due =
+            evaluator.is_some() && updates.is_multiple_of(cfg.learner.eval_every_updates);
+        // The evaluator's snapshot: the published weights when they are published now.
+        let mut snapshot = None;
         if updates.is_multiple_of(cfg.learner.publish_every_updates) {
-            let version = state.variables().publish_weights(learner.policy_safetensors()?);
+            let policy = learner.policy_safetensors()?;
+            let for_eval = eval_due.then(|| policy.clone());
+            let version = state.variables().publish_weights(policy);
             tracing::debug!(updates, version, "published weights");
+            snapshot = for_eval.map(|p| (version, p));
+        }
+        if let Some(ev) = evaluator.as_ref().filter(|_| eval_due) {
+            let (policy_version, policy) = match snapshot {
+                Some(s) => s,
+                None => (0, learner.policy_safetensors()?),
+            };
+            let env_steps = state.status().transitions_received;
+            ev.submit(Snapshot { updates, env_steps, policy_version, policy });
         }
         if updates.is_multiple_of(cfg.learner.checkpoint_every_updates) {
             let path = write_checkpoint(&state, &learner, &rng, &out_dir)?;
             tracing::info!(updates, path = %path.display(), "checkpoint written");
         }
+    }
+    if let Some(ev) = evaluator {
+        ev.finish();
     }
     Ok((learner, rng))
 }

@@ -2,11 +2,14 @@
 
 mod actor;
 mod bench;
+mod eval;
+mod eval_out;
 mod inspect;
 mod learner;
 mod plot;
 mod rooms;
 mod train;
+mod transfer;
 
 use clap::{Parser, Subcommand};
 use std::path::{Path, PathBuf};
@@ -35,12 +38,18 @@ enum Command {
     /// Summarize, list, detail or check MCAP episode logs (a file, a directory, or a run
     /// directory).
     Inspect(inspect::InspectArgs),
+    /// Evaluate a policy checkpoint: rates, score and time per room, evaluation routes, the
+    /// gate test, the dynamic scenario.
+    Eval(eval::EvalArgs),
     /// Draw figures from episode logs (PNG).
     Plot(plot::PlotArgs),
     /// Benchmarks that print figures (JSON with --json).
     Bench(bench::BenchArgs),
     /// List the built-in rooms or draw one (or a room file) to a PNG.
     Rooms(rooms::RoomsArgs),
+    /// DVST: the dimension-scaled robot and its scale μ for a varied robot (a footprint file),
+    /// as text, JSON, or a figure.
+    Transfer(transfer::TransferArgs),
 }
 
 /// Sets up logging to stderr.
@@ -67,9 +76,11 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Learner(a) => learner::run(a),
         Command::Actor(a) => actor::run(a),
         Command::Inspect(a) => inspect::run(a),
+        Command::Eval(a) => eval::run(a),
         Command::Plot(a) => plot::run(a),
         Command::Bench(a) => bench::run(a),
         Command::Rooms(a) => rooms::run(a),
+        Command::Transfer(a) => transfer::run(a),
     }
 }
 

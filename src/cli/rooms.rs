@@ -2,7 +2,8 @@
 
 use crate::render::room_map::render_room;
 use clap::{Args, Subcommand};
-use dvnav_common::sim::{Footprint, Room, RoomSpec};
+use dvnav_common::dvst::VariedRobot;
+use dvnav_common::sim::{Room, RoomSpec};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -32,7 +33,8 @@ enum RoomsCommand {
         /// Output PNG; a file with several rooms writes NAME-ROOM.png for each.
         #[arg(long, default_value = "room.png")]
         out: PathBuf,
-        /// Draw this robot footprint (a footprint TOML file) at the first route's start.
+        /// Draw this robot footprint (a footprint TOML file, e.g. from `footprints/`) at the
+        /// first route's start.
         #[arg(long)]
         footprint: Option<PathBuf>,
         /// Map size in pixels.
@@ -129,7 +131,9 @@ pub fn run(args: RoomsArgs) -> anyhow::Result<ExitCode> {
         }
         RoomsCommand::Show { room, out, footprint, size } => {
             anyhow::ensure!((64..=8192).contains(&size), "--size must be in 64..=8192 pixels");
-            let footprint = footprint.map(|p| Footprint::load(&p)).transpose()?;
+            // A DVST varied-robot file (`footprints/`) is a footprint file with a few keys more.
+            let footprint =
+                footprint.map(|p| VariedRobot::load(&p).map(|r| r.footprint)).transpose()?;
             let rooms = Room::load(&room)?;
             if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
                 std::fs::create_dir_all(dir)?;

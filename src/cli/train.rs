@@ -13,7 +13,7 @@ use std::process::{Child, Command, ExitCode, Stdio};
 use std::time::{Duration, Instant};
 
 /// Train with a learner plus N actors on this machine.
-#[derive(Args, Debug)]
+#[derive(Args, Debug, Clone)]
 pub struct TrainArgs {
     /// Run configuration (TOML); every key it leaves out keeps its default.
     #[arg(long)]
@@ -27,6 +27,17 @@ pub struct TrainArgs {
     /// Seed; overrides run.seed.
     #[arg(long)]
     pub seed: Option<u64>,
+    /// Train the same config with this many seeds, one after the other (seed, seed+1, …), each
+    /// in OUT/seed-<seed>/, then print a table and write OUT/seeds_summary.json (stage reached,
+    /// when the last room reached the threshold, wall time). `dvnav plot curves OUT/seed-*`
+    /// draws them together.
+    #[arg(long, value_name = "N", conflicts_with = "resume")]
+    pub seeds: Option<usize>,
+    /// End each run once the last room reaches the curriculum threshold over a full window
+    /// (sets curriculum.stop_when_skilled): measures "time to skill" without spending the
+    /// rest of the step budget.
+    #[arg(long)]
+    pub stop_when_skilled: bool,
     /// Run directory (must not hold another run). Default: runs/run-UNIXTIME.
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -94,6 +105,81 @@ fn signal(child: &Child, sig: i32) {
 }
 
 pub fn run(args: TrainArgs) -> anyhow::Result<ExitCode> {
+    match args.seeds {
+        Some(n) => run_seeds(args, n),
+        None => run_one(args),
+    }
+}
+
+/// `--seeds N`: the runs one after the other, then their summary.
+fn run_seeds(args: TrainArgs, n: usize) -> anyhow::Result<ExitCode> {
+    anyhow::ensure!(n >= 1, "--seeds must be at least 1");
+    let base_cfg = super::load_config(args.config.as_ref())?;
+    let first = args.seed.unwrap_or(base_cfg.run.seed);
+    let out = args.out.clone().unwrap_or_else(default_out);
+    let mut rows = Vec::new();
+    let mut all_ok = true;
+    for seed in first..first + n as u64 {
+        let dir = out.join(format!("seed-{seed}"));
+        eprintln!("dvnav train: seed {seed} ({} of {n}) in {}", seed - first + 1, dir.display());
+        let one =
+            TrainArgs { seed: Some(seed), out: Some(dir.clone()), seeds: None, ..args.clone() };
+        let code = run_one(one)?;
+        all_ok &= code == ExitCode::SUCCESS;
+        rows.push(seed_row(seed, &dir));
+    }
+    eprintln!("\nseed  stage  skilled at (steps)  time to skill (s)  wall (s)");
+    for r in &rows {
+        let opt = |v: &Value| v.as_f64().map_or("-".to_string(), |x| format!("{x:.0}"));
+        eprintln!(
+            "{:<5} {:<6} {:<19} {:<18} {}",
+            r["seed"],
+            r["stage"],
+            opt(&r["skilled_env_steps"]),
+            opt(&r["time_to_skill_s"]),
+            opt(&r["wall_time_s"])
+        );
+    }
+    let skilled = rows.iter().filter(|r| !r["skilled_env_steps"].is_null()).count();
+    eprintln!("{skilled} of {n} seeds reached the last room's threshold");
+    let summary = json!({ "seeds": rows, "skilled": skilled, "runs": n });
+    std::fs::write(out.join("seeds_summary.json"), serde_json::to_vec_pretty(&summary)?)?;
+    Ok(if all_ok { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+}
+
+/// One seed's line of `seeds_summary.json`, from its run directory.
+fn seed_row(seed: u64, dir: &Path) -> Value {
+    let s = read_json(&dir.join("run_summary.json")).unwrap_or(Value::Null);
+    let skilled_steps = s["skilled"]["env_steps"].as_u64();
+    json!({
+        "seed": seed,
+        "run_dir": dir.display().to_string(),
+        "stage": s["stage"],
+        "stage_changes": s["stage_changes"],
+        "skilled_env_steps": skilled_steps,
+        "time_to_skill_s": skilled_steps.and_then(|n| time_at_steps(dir, n)),
+        "wall_time_s": s["wall_time_s"],
+        "env_steps": s["transitions_received"],
+    })
+}
+
+/// Wall time (s) at which the run's `metrics.csv` first shows `steps` environment steps.
+pub fn time_at_steps(dir: &Path, steps: u64) -> Option<f64> {
+    let text = std::fs::read_to_string(dir.join("metrics.csv")).ok()?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next()?.split(',').collect();
+    let (t, n) = (
+        header.iter().position(|h| *h == "time_s")?,
+        header.iter().position(|h| *h == "env_steps")?,
+    );
+    lines.find_map(|l| {
+        let f: Vec<&str> = l.split(',').collect();
+        let at: u64 = f.get(n)?.parse().ok()?;
+        (at >= steps).then(|| f.get(t)?.parse().ok()).flatten()
+    })
+}
+
+fn run_one(args: TrainArgs) -> anyhow::Result<ExitCode> {
     anyhow::ensure!(args.actors >= 1, "--actors must be at least 1");
     let mut cfg: Config = match &args.resume {
         Some(dir) => Config::load(&dir.join("config.toml"))?,
@@ -104,6 +190,9 @@ pub fn run(args: TrainArgs) -> anyhow::Result<ExitCode> {
     }
     if let Some(s) = args.seed {
         cfg.run.seed = s;
+    }
+    if args.stop_when_skilled {
+        cfg.curriculum.stop_when_skilled = true;
     }
     cfg.validate()?;
     let out = args.resume.clone().or_else(|| args.out.clone()).unwrap_or_else(default_out);
@@ -385,6 +474,7 @@ fn merge_summaries(
         "replay_size": l["replay_size"],
         "stage": l["stage"],
         "stage_changes": l["stage_changes"],
+        "skilled": l["skilled"],
         "success_rate": l["success_rate"],
         "critic_loss": l["critic_loss"],
         "actor_loss": l["actor_loss"],

@@ -10,10 +10,12 @@
 //! - [`trajectories`]: `dvnav plot trajectories`, episode paths over their rooms.
 //! - [`room_map`]: `dvnav rooms show`, a room with its spawn regions, routes, timed obstacles
 //!   and a robot footprint.
+//! - [`dvst`]: `dvnav transfer --out`, the meta, varied and dimension-scaled robots.
 //!
-//! Later figures (DVST footprints, the gate test) add modules here.
+//! Later figures (the gate test) add modules here.
 
 pub mod curves;
+pub mod dvst;
 pub mod room;
 pub mod room_map;
 pub mod text;

@@ -22,8 +22,9 @@ const TITLE: u32 = 40;
 /// Legend height.
 const LEGEND: u32 = 30;
 
-/// Outline (`closed` polyline) of one convex shape, as pixels; circles are sampled.
-fn outline(view: &WorldView, shape: &ObstacleSpec) -> Vec<Vec<(f32, f32)>> {
+/// Outline (`closed` polyline) of each convex part of a shape, as pixels; circles are
+/// sampled.
+pub fn outline(view: &WorldView, shape: &ObstacleSpec) -> Vec<Vec<(f32, f32)>> {
     let mut out = Vec::new();
     shape.for_each_primitive(&mut |p| {
         let pts = match p {

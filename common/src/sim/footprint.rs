@@ -143,27 +143,7 @@ impl Footprint {
             parts: Vec<toml::Spanned<ObstacleSpec>>,
         }
         let file: File = parse_toml(text, source)?;
-        let err = |line, key: String, reason: String| SpecFileError {
-            source: source.to_string(),
-            line,
-            key,
-            reason,
-        };
-        if file.parts.is_empty() {
-            return Err(err(None, "parts".into(), "a footprint needs at least one part".into()));
-        }
-        for (i, p) in file.parts.iter().enumerate() {
-            let line = Some(line_of(text, p.span().start));
-            if matches!(p.get_ref(), ObstacleSpec::Compound { .. }) {
-                let why = "a footprint is already a union; list the parts directly".to_string();
-                return Err(err(line, format!("parts[{i}]"), why));
-            }
-            p.get_ref().validate().map_err(|e| err(line, format!("parts[{i}]"), e.to_string()))?;
-        }
-        Ok(Footprint {
-            name: file.name,
-            parts: file.parts.into_iter().map(|p| p.into_inner()).collect(),
-        })
+        Ok(Footprint { name: file.name, parts: checked_parts(file.parts, text, source)? })
     }
 
     /// Reads a footprint file.
@@ -177,6 +157,34 @@ impl Footprint {
         })?;
         Footprint::from_toml_str(&text, &source)
     }
+}
+
+/// The `parts` of a footprint file, checked: at least one, each a valid box, circle or convex
+/// polygon (no compounds). Errors name the part's line in `text`. Shared with the DVST
+/// footprint file ([`crate::dvst`]), which has the same `parts` and a few keys more.
+pub(crate) fn checked_parts(
+    parts: Vec<toml::Spanned<ObstacleSpec>>,
+    text: &str,
+    source: &str,
+) -> Result<Vec<ObstacleSpec>, SpecFileError> {
+    let err = |line, key: String, reason: String| SpecFileError {
+        source: source.to_string(),
+        line,
+        key,
+        reason,
+    };
+    if parts.is_empty() {
+        return Err(err(None, "parts".into(), "a footprint needs at least one part".into()));
+    }
+    for (i, p) in parts.iter().enumerate() {
+        let line = Some(line_of(text, p.span().start));
+        if matches!(p.get_ref(), ObstacleSpec::Compound { .. }) {
+            let why = "a footprint is already a union; list the parts directly".to_string();
+            return Err(err(line, format!("parts[{i}]"), why));
+        }
+        p.get_ref().validate().map_err(|e| err(line, format!("parts[{i}]"), e.to_string()))?;
+    }
+    Ok(parts.into_iter().map(|p| p.into_inner()).collect())
 }
 
 #[cfg(test)]

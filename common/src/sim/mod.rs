@@ -47,6 +47,7 @@ mod vec_env;
 
 pub use env::{NavEnv, StepOutcome};
 pub use footprint::Footprint;
+pub(crate) use footprint::checked_parts;
 pub use lidar::Lidar;
 pub use room::Room;
 pub use room_file::SpecFileError;

@@ -67,13 +67,13 @@ impl fmt::Display for SpecFileError {
 impl std::error::Error for SpecFileError {}
 
 /// 1-based line of byte offset `at` in `text`.
-pub(super) fn line_of(text: &str, at: usize) -> usize {
+pub(crate) fn line_of(text: &str, at: usize) -> usize {
     text.as_bytes()[..at.min(text.len())].iter().filter(|&&b| b == b'\n').count() + 1
 }
 
 /// Parses TOML into `T`, turning a syntax or schema error into a [`SpecFileError`] with the
 /// line `toml` points at.
-pub(super) fn parse_toml<T: serde::de::DeserializeOwned>(
+pub(crate) fn parse_toml<T: serde::de::DeserializeOwned>(
     text: &str,
     source: &str,
 ) -> Result<T, SpecFileError> {

@@ -97,7 +97,7 @@ impl ReplayBuffer {
         let terminated = read("terminated", Dtype::U8)?;
 
         let (s, e, n) = (codec.scan_len, codec.extra_len(), rewards.len());
-        let n_obs = if s > 0 { scans.len() / s } else { extras.len() / e.max(1) };
+        let n_obs = scans.len().checked_div(s).unwrap_or(extras.len() / e.max(1));
         let mut buffer = Self::new(codec, capacity);
         anyhow::ensure!(
             scans.len() == n_obs * s

@@ -1,5 +1,5 @@
 //! The replay buffer: a ring of transitions sampled uniformly, each observation stored once and
-//! compactly ([`codec`]); [`file`] saves and restores it with a checkpoint.
+//! compactly ([`ObsCodec`]); `file.rs` saves and restores it with a checkpoint.
 
 mod codec;
 mod file;

@@ -1,0 +1,355 @@
+//! The evaluation protocol during training (design §4, issue 5): every
+//! `learner.eval_every_updates` updates, the deterministic policy of that moment drives the
+//! evaluation route of every curriculum room and `learner.eval_episodes` seeded random episodes
+//! per room; one row per room goes to `eval.csv` in the run directory, and the route legs to
+//! MCAP (`mcap/eval/eval-NNNNN.mcap`).
+//!
+//! **Never stalls the update loop.** The trainer hands over a snapshot of the policy weights
+//! (safetensors bytes, the same the actors get) through a channel that holds one; an
+//! evaluator thread builds its own [`MetaAgent`] from them and steps the environments on a
+//! one-thread rayon pool, so it takes at most one core from the learner. When an evaluation is
+//! still queued when the next falls due, the new one is skipped with a warning, not waited for.
+//!
+//! **Comparable rows.** The random episodes' starts and goals come from a fixed seed derived
+//! from `run.seed`, so every evaluation of a run (and of runs with the same seed) faces the
+//! same episodes. Random episodes are not logged to MCAP (about 8 MB per evaluation at the
+//! default 10 per room); the routes are (about 1 MB).
+
+use dvnav_common::config::Config;
+use dvnav_common::episode_log::LogMetadata;
+use dvnav_common::eval::{
+    EvalLogger, RoomSummary, RunOptions, TRAINING_ROUTE, TaskKind, room_summaries, run_tasks,
+    training_tasks,
+};
+use dvnav_common::policy::MetaAgent;
+use dvnav_common::sim::Room;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{self, SyncSender, TrySendError};
+use std::thread::JoinHandle;
+use std::time::Instant;
+
+/// Header of `eval.csv`.
+pub const EVAL_CSV_HEADER: &str = "updates,env_steps,room,route_completed,score,success_rate,\
+collision_rate,timeout_rate,mean_time_s,episodes,mean_score,route_goals_reached,route_time_s,\
+policy_version,eval_wall_s";
+
+/// The policy at one moment of training.
+#[derive(Clone, Debug)]
+pub struct Snapshot {
+    /// Learner updates done.
+    pub updates: u64,
+    /// Environment steps received.
+    pub env_steps: u64,
+    /// Weight version of these weights (0 when they were never published).
+    pub policy_version: u64,
+    /// Policy weights, safetensors bytes.
+    pub policy: Vec<u8>,
+}
+
+/// The evaluator thread's handle.
+#[derive(Debug)]
+pub struct Evaluator {
+    tx: Option<SyncSender<Snapshot>>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl Evaluator {
+    /// Starts the evaluator thread for a run in `out_dir`, or `None` when
+    /// `learner.eval_every_updates` is 0.
+    pub fn start(cfg: &Config, out_dir: &Path) -> anyhow::Result<Option<Evaluator>> {
+        if cfg.learner.eval_every_updates == 0 {
+            return Ok(None);
+        }
+        let rooms = cfg
+            .curriculum
+            .rooms
+            .iter()
+            .map(|n| Room::builtin(n))
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        let (tx, rx) = mpsc::sync_channel::<Snapshot>(1);
+        let cfg = cfg.clone();
+        let out = out_dir.to_path_buf();
+        let thread = std::thread::Builder::new().name("evaluator".into()).spawn(move || {
+            let pool = match rayon::ThreadPoolBuilder::new().num_threads(1).build() {
+                Ok(p) => p,
+                Err(e) => {
+                    tracing::error!(error = %e, "evaluator: no thread pool; evaluation is off");
+                    return;
+                }
+            };
+            let mut logger = None;
+            for snap in rx {
+                if logger.is_none() {
+                    logger = open_logger(&cfg, &out)
+                        .inspect_err(|e| tracing::warn!(error = %format!("{e:#}"), "evaluation episodes are not logged"))
+                        .ok();
+                }
+                let result = pool.install(|| evaluate(&cfg, &rooms, &snap, logger.as_mut()));
+                match result.and_then(|(rows, wall)| {
+                    append_csv(&out.join("eval.csv"), &snap, &rows, wall)?;
+                    Ok((rows, wall))
+                }) {
+                    Ok((rows, wall)) => log_rows(&snap, &rows, wall),
+                    Err(e) => tracing::error!(updates = snap.updates, error = %format!("{e:#}"), "evaluation failed"),
+                }
+            }
+            if let Some(l) = logger
+                && let Err(e) = l.close()
+            {
+                tracing::warn!(error = %format!("{e:#}"), "closing the evaluation log");
+            }
+        })?;
+        Ok(Some(Evaluator { tx: Some(tx), thread: Some(thread) }))
+    }
+
+    /// Hands `snap` to the evaluator without waiting; returns false (and warns) when an
+    /// earlier evaluation is still queued.
+    pub fn submit(&self, snap: Snapshot) -> bool {
+        let Some(tx) = &self.tx else { return false };
+        match tx.try_send(snap) {
+            Ok(()) => true,
+            Err(TrySendError::Full(s)) => {
+                tracing::warn!(
+                    updates = s.updates,
+                    "evaluation skipped: the previous one is still queued"
+                );
+                false
+            }
+            Err(TrySendError::Disconnected(s)) => {
+                tracing::warn!(
+                    updates = s.updates,
+                    "evaluation skipped: the evaluator has stopped"
+                );
+                false
+            }
+        }
+    }
+
+    /// Waits for the queued evaluations to finish and stops the thread.
+    pub fn finish(mut self) {
+        self.stop();
+    }
+
+    fn stop(&mut self) {
+        self.tx = None;
+        if let Some(t) = self.thread.take()
+            && t.join().is_err()
+        {
+            tracing::error!("the evaluator thread panicked");
+        }
+    }
+}
+
+impl Drop for Evaluator {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+fn open_logger(cfg: &Config, out: &Path) -> anyhow::Result<EvalLogger> {
+    let meta = LogMetadata {
+        run_id: out.file_name().and_then(|n| n.to_str()).unwrap_or("run").to_string(),
+        config_hash: cfg.hash_hex(),
+        seed: cfg.run.seed,
+        ..Default::default()
+    };
+    let dir: PathBuf = out.join("mcap").join("eval");
+    EvalLogger::create(&dir, "eval", "eval", meta, cfg.logging.episodes_per_file)
+}
+
+/// Seed of the evaluation episodes of a run with root seed `seed` (apart from the seeds
+/// actors derive from it).
+pub fn eval_seed(seed: u64) -> u64 {
+    seed ^ 0x5eed_e7a1_0000_0000
+}
+
+/// Evaluates the policy of `snap` in `rooms` (the curriculum's): their routes and
+/// `learner.eval_episodes` random episodes each. Route legs go to `logger` with each room's
+/// curriculum stage. Returns one row per room and the wall time (s).
+pub fn evaluate(
+    cfg: &Config,
+    rooms: &[std::sync::Arc<Room>],
+    snap: &Snapshot,
+    mut logger: Option<&mut EvalLogger>,
+) -> anyhow::Result<(Vec<RoomSummary>, f64)> {
+    let started = Instant::now();
+    let mut agent = MetaAgent::from_safetensors(&snap.policy, cfg)?;
+    let tasks =
+        training_tasks(rooms, TRAINING_ROUTE, cfg.learner.eval_episodes, eval_seed(cfg.run.seed));
+    if let Some(l) = logger.as_deref_mut() {
+        l.policy_version = snap.policy_version;
+    }
+    let opts = RunOptions { samples: logger.is_some(), ..Default::default() };
+    let results = run_tasks(&tasks, &cfg.env, &mut [&mut agent], opts, &mut |task, done| match (
+        logger.as_deref_mut(),
+        &task.kind,
+    ) {
+        (Some(l), TaskKind::Route(_)) => {
+            let stage = rooms.iter().position(|r| r.name() == task.room.name()).unwrap_or(0);
+            l.log(task, stage as u32, &done)
+        }
+        _ => Ok(()),
+    })?;
+    Ok((room_summaries(&tasks, &results), started.elapsed().as_secs_f64()))
+}
+
+/// One `eval.csv` line per room.
+pub fn csv_rows(snap: &Snapshot, rows: &[RoomSummary], wall_s: f64) -> Vec<String> {
+    let f = |x: f64| if x.is_finite() { format!("{x:.4}") } else { "NaN".into() };
+    rows.iter()
+        .map(|r| {
+            let route = r.route.as_ref();
+            [
+                snap.updates.to_string(),
+                snap.env_steps.to_string(),
+                r.room.clone(),
+                route.map_or(String::new(), |x| x.completed.to_string()),
+                route.map_or("NaN".into(), |x| f(x.score)),
+                f(r.rates.success_rate),
+                f(r.rates.collision_rate),
+                f(r.rates.timeout_rate),
+                f(r.rates.mean_time_s.unwrap_or(f64::NAN)),
+                r.rates.episodes.to_string(),
+                f(r.rates.mean_score),
+                route.map_or(String::new(), |x| x.goals_reached.to_string()),
+                route.map_or("NaN".into(), |x| f(x.time_s)),
+                snap.policy_version.to_string(),
+                format!("{wall_s:.2}"),
+            ]
+            .join(",")
+        })
+        .collect()
+}
+
+/// Appends the rows to `path`, writing the header first when the file is new or empty (a
+/// resumed run keeps appending to its file).
+pub fn append_csv(
+    path: &Path,
+    snap: &Snapshot,
+    rows: &[RoomSummary],
+    wall_s: f64,
+) -> anyhow::Result<()> {
+    let mut file = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(path)
+        .map_err(|e| anyhow::anyhow!("cannot open {}: {e}", path.display()))?;
+    let mut text = String::new();
+    if file.metadata()?.len() == 0 {
+        text.push_str(EVAL_CSV_HEADER);
+        text.push('\n');
+    }
+    for line in csv_rows(snap, rows, wall_s) {
+        text.push_str(&line);
+        text.push('\n');
+    }
+    file.write_all(text.as_bytes())?;
+    Ok(())
+}
+
+fn log_rows(snap: &Snapshot, rows: &[RoomSummary], wall_s: f64) {
+    for r in rows {
+        let route = r.route.as_ref();
+        tracing::info!(
+            updates = snap.updates,
+            env_steps = snap.env_steps,
+            room = %r.room,
+            route_completed = route.is_some_and(|x| x.completed),
+            route_goals = %route.map_or("-".into(), |x| format!("{}/{}", x.goals_reached, x.goals)),
+            route_score = route.map_or(f64::NAN, |x| x.score),
+            success_rate = r.rates.success_rate,
+            collision_rate = r.rates.collision_rate,
+            mean_score = r.rates.mean_score,
+            "evaluation"
+        );
+    }
+    tracing::debug!(updates = snap.updates, wall_s, "evaluation done");
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use candle_core::Device;
+
+    fn tiny_config() -> Config {
+        let mut cfg = Config::default();
+        cfg.env.max_steps = 30;
+        cfg.learner.eval_every_updates = 10;
+        cfg.learner.eval_episodes = 2;
+        cfg.curriculum.rooms = vec!["env0".into(), "env3".into()];
+        cfg
+    }
+
+    fn fresh_policy(cfg: &Config) -> Vec<u8> {
+        let nets = crate::sac::SacNetworks::new(cfg, 3, &Device::Cpu).unwrap();
+        dvnav_common::nets::varmap_to_safetensors(&nets.actor.vars).unwrap()
+    }
+
+    #[test]
+    fn the_evaluator_thread_appends_one_row_per_room_and_logs_the_routes() {
+        let cfg = tiny_config();
+        let dir = tempfile::tempdir().unwrap();
+        let ev = Evaluator::start(&cfg, dir.path()).unwrap().unwrap();
+        let policy = fresh_policy(&cfg);
+        assert!(ev.submit(Snapshot {
+            updates: 10,
+            env_steps: 40,
+            policy_version: 3,
+            policy: policy.clone()
+        }));
+        ev.finish();
+        let ev = Evaluator::start(&cfg, dir.path()).unwrap().unwrap();
+        assert!(ev.submit(Snapshot { updates: 20, env_steps: 80, policy_version: 0, policy }));
+        drop(ev);
+        let text = std::fs::read_to_string(dir.path().join("eval.csv")).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines[0], EVAL_CSV_HEADER, "one header, even after a restart");
+        assert_eq!(lines.len(), 5, "{text}");
+        let cols = EVAL_CSV_HEADER.split(',').count();
+        let first: Vec<&str> = lines[1].split(',').collect();
+        assert_eq!(first.len(), cols);
+        assert_eq!(&first[..3], ["10", "40", "env0"]);
+        assert_eq!(first[9], "2", "episodes");
+        assert!(lines[2].starts_with("10,40,env3,") && lines[4].starts_with("20,80,env3,"));
+        // Rates are shares, the score is in [−1, 1].
+        for l in &lines[1..] {
+            let c: Vec<&str> = l.split(',').collect();
+            let rates: f64 = c[5..8].iter().map(|x| x.parse::<f64>().unwrap()).sum();
+            assert!((rates - 1.0).abs() < 1e-3, "{l}");
+            let s: f64 = c[4].parse().unwrap();
+            assert!((-1.0..=1.0).contains(&s), "{l}");
+        }
+        let logged =
+            dvnav_common::episode_log::read_episodes(&dir.path().join("mcap/eval")).unwrap();
+        assert!(!logged.is_empty());
+        assert!(logged.iter().all(|r| r.summary.actor == "eval"));
+        assert!(logged.iter().any(|r| r.summary.policy_version == 3 && r.summary.stage == 0));
+        assert!(logged.iter().any(|r| r.summary.room == "env3" && r.summary.stage == 1));
+    }
+
+    #[test]
+    fn evaluation_is_off_at_zero_and_bad_weights_fail_cleanly() {
+        let mut cfg = tiny_config();
+        cfg.learner.eval_every_updates = 0;
+        assert!(Evaluator::start(&cfg, Path::new("/nonexistent")).unwrap().is_none());
+        let cfg = tiny_config();
+        let rooms = vec![Room::builtin("env0").unwrap()];
+        let snap =
+            Snapshot { updates: 1, env_steps: 1, policy_version: 0, policy: b"junk".to_vec() };
+        assert!(evaluate(&cfg, &rooms, &snap, None).is_err());
+    }
+
+    #[test]
+    fn the_same_policy_scores_the_same_every_time() {
+        let cfg = tiny_config();
+        let rooms = vec![Room::builtin("env1").unwrap()];
+        let snap =
+            Snapshot { updates: 1, env_steps: 1, policy_version: 0, policy: fresh_policy(&cfg) };
+        let (a, _) = evaluate(&cfg, &rooms, &snap, None).unwrap();
+        let (b, _) = evaluate(&cfg, &rooms, &snap, None).unwrap();
+        assert_eq!(a, b);
+        assert_eq!(a[0].rates.episodes, 2);
+        assert_eq!(a[0].route.as_ref().unwrap().goals, 4);
+    }
+}

@@ -1,0 +1,287 @@
+//! `dvnav eval`: a checkpoint on the training rooms (routes and random episodes), the gate test
+//! or the dynamic scenario; a table or JSON, and optionally MCAP + CSV and a trajectory figure.
+//! The evaluation itself is [`dvnav_common::eval`].
+
+use super::eval_out::{self, Rows};
+use clap::{Args, ValueEnum};
+use dvnav_common::config::Config;
+use dvnav_common::dvst::{Dvst, MetaRobot, VariedRobot};
+use dvnav_common::episode_log::LogMetadata;
+use dvnav_common::eval::{
+    EvalLogger, GateGeometry, RunOptions, TRAINING_ROUTE, Task, parse_radii, robot_results,
+    robot_tasks, room_summaries, run_tasks, training_tasks,
+};
+use dvnav_common::policy::{MetaAgent, NavPolicy};
+use dvnav_common::sim::{Footprint, Room};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Instant;
+
+/// Evaluate a policy checkpoint: success / collision / timeout rates, the paper's score S and
+/// time to goal per room, the evaluation routes, the gate test (which way each robot size
+/// went) or the dynamic scenario.
+#[derive(Args, Debug)]
+pub struct EvalArgs {
+    /// A checkpoint directory (`RUN/checkpoints/ckpt-N`), a model directory, or a
+    /// `policy.safetensors` file; the `config.toml` beside it (else the defaults) gives the
+    /// network and the simulator's constants.
+    #[arg(long)]
+    pub checkpoint: PathBuf,
+    /// training: Env_0..Env_3 (routes and random episodes); gate: the gate test, one robot per
+    /// radius; dynamic: obstacles appear on the route, one robot per radius.
+    #[arg(long, value_enum, default_value_t = Scenario::Training)]
+    pub scenario: Scenario,
+    /// Random episodes per room (training scenario), seeded by --seed.
+    #[arg(long, default_value_t = 100)]
+    pub episodes: usize,
+    /// Robot radii START:STOP:STEP in metres, both ends included (gate: default
+    /// 0.20:0.75:0.05, the paper's twelve robots; dynamic: default 0.2:0.6:0.2).
+    #[arg(long, value_parser = parse_radii_arg)]
+    pub radii: Option<Radii>,
+    /// Seed of the random episodes' starts and goals.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// How a robot of another size is driven (gate, dynamic): through DVST (design §5), or by
+    /// the plain meta agent as if it were the meta robot.
+    #[arg(long, value_enum, default_value_t = Transfer::Dvst)]
+    pub transfer: Transfer,
+    /// Print JSON: one object per room (training, dynamic) or per robot (gate).
+    #[arg(long)]
+    pub json: bool,
+    /// Write every evaluation episode to MCAP (`DIR/eval-NNNNN.mcap`), one CSV row per episode
+    /// (`DIR/episodes.csv`) and the report (`DIR/summary.json`).
+    #[arg(long, value_name = "DIR")]
+    pub out_dir: Option<PathBuf>,
+    /// Draw every trajectory over its room (one panel per room) into this PNG.
+    #[arg(long, value_name = "PNG")]
+    pub out: Option<PathBuf>,
+    /// Episodes stepped at once; the policy sees them as one batch.
+    #[arg(long, default_value_t = 64)]
+    pub batch: usize,
+}
+
+/// Which scenario.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum Scenario {
+    /// The curriculum rooms: each room's route and random episodes.
+    Training,
+    /// The gate room, one circular robot per radius.
+    Gate,
+    /// The dynamic room, one circular robot per radius.
+    Dynamic,
+}
+
+impl Scenario {
+    fn name(self) -> &'static str {
+        match self {
+            Scenario::Training => "training",
+            Scenario::Gate => "gate",
+            Scenario::Dynamic => "dynamic",
+        }
+    }
+}
+
+/// How robots of other sizes are driven.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum Transfer {
+    /// Dimension-variable skill transfer around the meta agent.
+    Dvst,
+    /// The meta agent unchanged.
+    None,
+}
+
+/// Parsed `--radii`.
+#[derive(Clone, Debug)]
+pub struct Radii(pub Vec<f64>);
+
+fn parse_radii_arg(s: &str) -> Result<Radii, String> {
+    parse_radii(s).map(Radii).map_err(|e| e.to_string())
+}
+
+/// Reads the policy weights and the configuration of a checkpoint, and checks that they make a
+/// policy.
+fn load_checkpoint(path: &Path) -> anyhow::Result<(Vec<u8>, Config)> {
+    anyhow::ensure!(path.exists(), "checkpoint {}: no such file or directory", path.display());
+    let file = if path.is_dir() { path.join("policy.safetensors") } else { path.to_path_buf() };
+    let dir = file.parent().unwrap_or(Path::new("."));
+    let cfg_file = dir.join("config.toml");
+    let cfg = if cfg_file.exists() { Config::load(&cfg_file)? } else { Config::default() };
+    let bytes = std::fs::read(&file)
+        .map_err(|e| anyhow::anyhow!("{}: cannot read the policy weights: {e}", file.display()))?;
+    MetaAgent::from_safetensors(&bytes, &cfg).map_err(|e| {
+        anyhow::anyhow!("{}: not a policy of the network in its config: {e:#}", file.display())
+    })?;
+    Ok((bytes, cfg))
+}
+
+/// The one place that decides what drives a robot of radius `radius`: the meta agent wrapped
+/// in DVST for that robot (μ = radius / meta radius), or the plain meta agent. Returns the
+/// policy and μ.
+fn robot_policy(
+    weights: &[u8],
+    cfg: &Config,
+    radius: f64,
+    transfer: Transfer,
+) -> anyhow::Result<(Box<dyn NavPolicy>, f64)> {
+    let agent = MetaAgent::from_safetensors(weights, cfg)?;
+    match transfer {
+        Transfer::None => Ok((Box::new(agent), 1.0)),
+        Transfer::Dvst => {
+            let trained = cfg
+                .env
+                .footprint
+                .clone()
+                .unwrap_or_else(|| Footprint::circle(cfg.env.robot_radius));
+            let meta = MetaRobot::from_footprint(&trained).ok_or_else(|| {
+                anyhow::anyhow!("DVST needs a circular or rectangular meta robot; the checkpoint's robot is `{}`", trained.name)
+            })?;
+            let robot = VariedRobot { meta, ..VariedRobot::new(Footprint::circle(radius)) };
+            let lidar = &cfg.env.lidar;
+            let dvst = Dvst::new(agent, robot)?
+                .with_scan_range(Some([lidar.range_min, lidar.range_max]))?;
+            let mu = dvst.mu();
+            Ok((Box::new(dvst), mu))
+        }
+    }
+}
+
+/// The scenario's tasks, and the room each group of results is drawn in.
+fn tasks(args: &EvalArgs, cfg: &Config) -> anyhow::Result<Vec<Task>> {
+    Ok(match args.scenario {
+        Scenario::Training => {
+            let rooms = cfg
+                .curriculum
+                .rooms
+                .iter()
+                .map(|n| Room::builtin(n))
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            training_tasks(&rooms, TRAINING_ROUTE, args.episodes, args.seed)
+        }
+        Scenario::Gate | Scenario::Dynamic => {
+            let name = args.scenario.name();
+            let room = Room::builtin(name)?;
+            let route = room
+                .spec()
+                .route(name)
+                .ok_or_else(|| anyhow::anyhow!("room `{name}` has no route `{name}`"))?
+                .clone();
+            let default =
+                if args.scenario == Scenario::Gate { "0.20:0.75:0.05" } else { "0.2:0.6:0.2" };
+            let radii = match &args.radii {
+                Some(r) => r.0.clone(),
+                None => parse_radii(default)?,
+            };
+            if let Some(r) = radii.iter().find(|&&r| 2.0 * r >= room.side()) {
+                anyhow::bail!(
+                    "a robot of radius {r} m does not fit the {0}x{0} m room",
+                    room.side()
+                );
+            }
+            robot_tasks(&room, &route, &radii, args.seed)
+        }
+    })
+}
+
+/// Runs `dvnav eval`.
+pub fn run(args: EvalArgs) -> anyhow::Result<ExitCode> {
+    anyhow::ensure!(args.batch > 0, "--batch must be at least 1");
+    if args.scenario == Scenario::Training && args.radii.is_some() {
+        anyhow::bail!("--radii is for the gate and dynamic scenarios");
+    }
+    let started = Instant::now();
+    let (weights, cfg) = load_checkpoint(&args.checkpoint)?;
+    let tasks = tasks(&args, &cfg)?;
+    // Policies: one shared meta agent (one batch) for training, one per robot otherwise.
+    let mut owned: Vec<Box<dyn NavPolicy>> = Vec::new();
+    let mut mus = Vec::new();
+    match args.scenario {
+        Scenario::Training => owned.push(Box::new(MetaAgent::from_safetensors(&weights, &cfg)?)),
+        Scenario::Gate | Scenario::Dynamic => {
+            for t in &tasks {
+                let (p, mu) = robot_policy(
+                    &weights,
+                    &cfg,
+                    t.radius.unwrap_or(cfg.env.robot_radius),
+                    args.transfer,
+                )?;
+                owned.push(p);
+                mus.push(mu);
+            }
+        }
+    }
+    let mut policies: Vec<&mut dyn NavPolicy> =
+        owned.iter_mut().map(|p| p.as_mut() as &mut dyn NavPolicy).collect();
+
+    let mut logger = match &args.out_dir {
+        Some(dir) => {
+            let meta = LogMetadata {
+                run_id: format!("eval-{}", args.scenario.name()),
+                config_hash: cfg.hash_hex(),
+                seed: args.seed,
+                ..Default::default()
+            };
+            Some(EvalLogger::create(dir, "eval", "eval", meta, cfg.logging.episodes_per_file)?)
+        }
+        None => None,
+    };
+    let groups = eval_out::group_index(&tasks);
+    let total = tasks.len();
+    let mut finished = 0;
+    let mut last_report = Instant::now();
+    eprintln!(
+        "dvnav eval: {} scenario, {total} {} from {}",
+        args.scenario.name(),
+        if args.scenario == Scenario::Training { "routes and episodes" } else { "robots" },
+        args.checkpoint.display()
+    );
+    let opts = RunOptions { window: args.batch, samples: logger.is_some() };
+    let results = run_tasks(&tasks, &cfg.env, &mut policies, opts, &mut |task, done| {
+        if let Some(l) = logger.as_mut() {
+            l.log(task, groups[done.job] as u32, &done)?;
+        }
+        if done.job_done {
+            finished += 1;
+            if last_report.elapsed().as_secs_f64() >= 2.0 {
+                eprintln!(
+                    "dvnav eval: {finished}/{total} done ({:.0} s)",
+                    started.elapsed().as_secs_f64()
+                );
+                last_report = Instant::now();
+            }
+        }
+        Ok(())
+    })?;
+    if let Some(l) = logger {
+        l.close()?;
+    }
+
+    let rows = match args.scenario {
+        Scenario::Gate => {
+            let room = tasks[0].room.clone();
+            let route = room.spec().route("gate").expect("checked above").clone();
+            let geometry = GateGeometry::from_room(room.spec(), &route)?;
+            Rows::Robots(eval_out::gate_rows(
+                robot_results(&tasks, &results, &geometry),
+                &mus,
+                args.transfer == Transfer::Dvst,
+            ))
+        }
+        Scenario::Training | Scenario::Dynamic => Rows::Rooms(room_summaries(&tasks, &results)),
+    };
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&rows)?);
+    } else {
+        eval_out::print_table(&rows, &mus);
+    }
+    if let Some(dir) = &args.out_dir {
+        eval_out::write_csv(&dir.join("episodes.csv"), args.scenario.name(), &tasks, &results)?;
+        std::fs::write(dir.join("summary.json"), serde_json::to_vec_pretty(&rows)?)?;
+        eprintln!("dvnav eval: episodes in {}", dir.display());
+    }
+    if let Some(png) = &args.out {
+        eval_out::draw(png, &tasks, &results, &cfg.env)?;
+        eprintln!("dvnav eval: trajectories in {}", png.display());
+    }
+    eprintln!("dvnav eval: {total} done in {:.1} s", started.elapsed().as_secs_f64());
+    Ok(ExitCode::SUCCESS)
+}

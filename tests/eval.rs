@@ -1,0 +1,248 @@
+//! `dvnav eval` as a user runs it: on a checkpoint of a tiny, freshly initialized network, the
+//! JSON of each scenario carries the field names dashboards read, `--out-dir` and `--out`
+//! write what they say, and bad input fails with a clear message.
+
+use candle_core::Device;
+use dvnav_common::config::Config;
+use dvnav_common::episode_log::read_episodes;
+use dvnav_learner::sac::SacNetworks;
+use serde_json::Value;
+use std::path::Path;
+use std::process::{Command, Output};
+
+/// A small network and short episodes, so the test is quick.
+fn tiny_config() -> Config {
+    let mut cfg = Config::default();
+    cfg.network.conv1_channels = 4;
+    cfg.network.conv2_channels = 4;
+    cfg.network.scan_features = 16;
+    cfg.network.hidden = 16;
+    cfg.env.max_steps = 40;
+    cfg
+}
+
+/// A checkpoint directory: `policy.safetensors` of a fresh policy and its `config.toml`.
+fn write_checkpoint(dir: &Path, cfg: &Config) {
+    std::fs::create_dir_all(dir).unwrap();
+    let nets = SacNetworks::new(cfg, 5, &Device::Cpu).unwrap();
+    let bytes = dvnav_common::nets::varmap_to_safetensors(&nets.actor.vars).unwrap();
+    std::fs::write(dir.join("policy.safetensors"), bytes).unwrap();
+    std::fs::write(dir.join("config.toml"), cfg.to_toml_string()).unwrap();
+}
+
+fn eval(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_dvnav"))
+        .arg("eval")
+        .args(args)
+        .env("CANDLE_NUM_THREADS", "1")
+        .output()
+        .expect("dvnav runs")
+}
+
+fn json(out: &Output) -> Vec<Value> {
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: Value = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("not JSON ({e}): {}", String::from_utf8_lossy(&out.stdout)));
+    v.as_array().expect("a JSON list").clone()
+}
+
+fn share(v: &Value) -> f64 {
+    let x = v.as_f64().unwrap_or_else(|| panic!("not a number: {v}"));
+    assert!((0.0..=1.0).contains(&x), "{x}");
+    x
+}
+
+#[test]
+fn training_json_has_one_object_per_room_with_the_dashboard_fields() {
+    let dir = tempfile::tempdir().unwrap();
+    let ckpt = dir.path().join("ckpt");
+    write_checkpoint(&ckpt, &tiny_config());
+    let rows = json(&eval(&["--checkpoint", ckpt.to_str().unwrap(), "--episodes", "3", "--json"]));
+    let rooms: Vec<&str> = rows.iter().map(|r| r["room"].as_str().unwrap()).collect();
+    assert_eq!(rooms, ["env0", "env1", "env2", "env3"]);
+    for r in &rows {
+        assert_eq!(r["episodes"], 3, "{r}");
+        let total =
+            share(&r["success_rate"]) + share(&r["collision_rate"]) + share(&r["timeout_rate"]);
+        assert!((total - 1.0).abs() < 1e-9, "{r}");
+        let s = r["mean_score"].as_f64().unwrap();
+        assert!((-1.0..=1.0).contains(&s), "{r}");
+        // A time when something succeeded, null otherwise.
+        assert!(r["mean_time_s"].is_null() == (r["success_rate"].as_f64() == Some(0.0)), "{r}");
+        let route = &r["route"];
+        assert_eq!(route["goals"], 4, "{r}");
+        assert!(route["completed"].is_boolean() && route["legs"].as_array().unwrap().len() == 4);
+    }
+    // The same seed gives the same report; the file path alone works too.
+    let again = json(&eval(&[
+        "--checkpoint",
+        ckpt.join("policy.safetensors").to_str().unwrap(),
+        "--episodes",
+        "3",
+        "--json",
+    ]));
+    assert_eq!(rows, again);
+}
+
+#[test]
+fn gate_json_has_one_object_per_robot_and_out_dir_and_figure_are_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let ckpt = dir.path().join("ckpt");
+    write_checkpoint(&ckpt, &tiny_config());
+    let out_dir = dir.path().join("eval");
+    let png = dir.path().join("gate.png");
+    let rows = json(&eval(&[
+        "--checkpoint",
+        ckpt.to_str().unwrap(),
+        "--scenario",
+        "gate",
+        "--radii",
+        "0.20:0.30:0.05",
+        "--json",
+        "--out-dir",
+        out_dir.to_str().unwrap(),
+        "--out",
+        png.to_str().unwrap(),
+    ]));
+    let radii: Vec<f64> = rows.iter().map(|r| r["radius"].as_f64().unwrap()).collect();
+    assert_eq!(radii, [0.2, 0.25, 0.3]);
+    for r in &rows {
+        assert!(
+            ["success", "collision", "timeout"].contains(&r["outcome"].as_str().unwrap()),
+            "{r}"
+        );
+        assert!(["gate", "left", "other"].contains(&r["route"].as_str().unwrap()), "{r}");
+        assert!(r["path_length_m"].as_f64().unwrap() >= 0.0, "{r}");
+        let t = r["time_s"].as_f64().unwrap();
+        assert!(t > 0.0 && t <= 40.0 * 0.2 + 1e-9, "{r}");
+        // DVST by default: μ = R / 0.2.
+        let mu = r["mu"].as_f64().unwrap();
+        assert!((mu - r["radius"].as_f64().unwrap() / 0.2).abs() < 1e-9, "{r}");
+    }
+    // Every route leg is in the MCAP files and in the CSV.
+    let logged = read_episodes(&out_dir).unwrap();
+    assert_eq!(logged.len(), 3);
+    assert!(logged.iter().all(|e| e.summary.room == "gate" && e.summary.actor == "eval"));
+    let csv = std::fs::read_to_string(out_dir.join("episodes.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 1 + 3, "{csv}");
+    assert!(csv.lines().nth(1).unwrap().starts_with("gate,gate,0.2,route,0,0,"), "{csv}");
+    let summary: Value =
+        serde_json::from_slice(&std::fs::read(out_dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary.as_array().unwrap(), &rows);
+    assert_eq!(&std::fs::read(&png).unwrap()[1..4], b"PNG");
+}
+
+#[test]
+fn dynamic_reports_three_sizes_by_default() {
+    let dir = tempfile::tempdir().unwrap();
+    let ckpt = dir.path().join("ckpt");
+    write_checkpoint(&ckpt, &tiny_config());
+    let rows = json(&eval(&[
+        "--checkpoint",
+        ckpt.to_str().unwrap(),
+        "--scenario",
+        "dynamic",
+        "--transfer",
+        "none",
+        "--json",
+    ]));
+    let radii: Vec<f64> = rows.iter().map(|r| r["radius"].as_f64().unwrap()).collect();
+    assert_eq!(radii, [0.2, 0.4, 0.6]);
+    for r in &rows {
+        assert_eq!((r["room"].as_str(), r["episodes"].as_u64()), (Some("dynamic"), Some(1)), "{r}");
+        assert_eq!(r["route"]["goals"], 1, "{r}");
+    }
+}
+
+#[test]
+fn bad_input_fails_with_a_clear_message() {
+    let dir = tempfile::tempdir().unwrap();
+    let stderr = |o: &Output| {
+        assert!(!o.status.success());
+        String::from_utf8_lossy(&o.stderr).to_string()
+    };
+    let missing = dir.path().join("nope");
+    let e = stderr(&eval(&["--checkpoint", missing.to_str().unwrap()]));
+    assert!(e.contains("no such file or directory"), "{e}");
+
+    // Weights of one network under the config of another.
+    let ckpt = dir.path().join("ckpt");
+    write_checkpoint(&ckpt, &tiny_config());
+    let mut other = tiny_config();
+    other.network.hidden = 32;
+    std::fs::write(ckpt.join("config.toml"), other.to_toml_string()).unwrap();
+    let e = stderr(&eval(&["--checkpoint", ckpt.to_str().unwrap()]));
+    assert!(e.contains("not a policy of the network"), "{e}");
+
+    let e = stderr(&eval(&[
+        "--checkpoint",
+        ckpt.to_str().unwrap(),
+        "--scenario",
+        "gate",
+        "--radii",
+        "0.5:0.2:0.1",
+    ]));
+    assert!(e.contains("--radii") && e.contains("START:STOP:STEP"), "{e}");
+}
+
+/// `dvnav train` evaluates every `learner.eval_every_updates` updates: rows per curriculum room
+/// in `eval.csv`, the route legs in `mcap/eval/`, a line per room in the learner's log.
+#[test]
+fn training_appends_evaluation_rows_every_n_updates() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("train.toml");
+    std::fs::write(
+        &config,
+        "[run]\nsteps = 3000\nseed = 7\n\
+         [sac]\nbatch_size = 32\nlearning_starts = 500\nupdates_per_env_step = 0.1\n\
+         [learner]\npublish_every_updates = 10\ncheckpoint_every_updates = 1000\n\
+         max_steps_ahead = 1000\neval_every_updates = 50\neval_episodes = 2\n\
+         [actor]\nenvs = 2\nbatch_transitions = 64\n\
+         [warmup]\npid_episodes = 10\n[logging]\nevery_nth_episode = 0\n",
+    )
+    .unwrap();
+    let out = dir.path().join("run");
+    let r = Command::new(env!("CARGO_BIN_EXE_dvnav"))
+        .args(["train", "--actors", "1", "--config"])
+        .arg(&config)
+        .arg("--out")
+        .arg(&out)
+        .env("RUST_LOG", "info")
+        .env("CANDLE_NUM_THREADS", "1")
+        .output()
+        .expect("dvnav runs");
+    let log = std::fs::read_to_string(out.join("logs/learner.log")).unwrap_or_default();
+    assert!(r.status.success(), "{}\n{log}", String::from_utf8_lossy(&r.stderr));
+    let csv = std::fs::read_to_string(out.join("eval.csv")).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    assert_eq!(
+        &header[..9],
+        [
+            "updates",
+            "env_steps",
+            "room",
+            "route_completed",
+            "score",
+            "success_rate",
+            "collision_rate",
+            "timeout_rate",
+            "mean_time_s"
+        ]
+    );
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    // ~150 updates: evaluations at 50, 100 (and 150 when the run got there), 4 rooms each.
+    assert!(rows.len() >= 8 && rows.len().is_multiple_of(4), "{csv}");
+    // (An evaluation due while the previous one is still queued is skipped, so the updates
+    // are multiples of 50, increasing, one value per group of four rooms.)
+    let updates: Vec<u64> = rows.iter().map(|r| r[0].parse().unwrap()).collect();
+    for (i, row) in rows.iter().enumerate() {
+        assert!(updates[i].is_multiple_of(50) && updates[i] == updates[i - i % 4], "{csv}");
+        assert_eq!(row[2], ["env0", "env1", "env2", "env3"][i % 4], "{csv}");
+        assert!(row[1].parse::<u64>().unwrap() > 0);
+    }
+    assert!(updates.windows(5).all(|w| w[4] > w[0]), "{csv}");
+    assert!(log.contains("evaluation"), "{log}");
+    let logged = read_episodes(&out.join("mcap/eval")).unwrap();
+    assert!(logged.len() >= 8, "at least one leg per room and evaluation");
+}
