@@ -1,7 +1,7 @@
 # dvnav — common tasks. `make test` is what CI runs (.ci/run).
 CARGO ?= cargo
 
-.PHONY: all build release test test-learning check-mcap lint fmt bench torch-venv train clean
+.PHONY: all build release test test-learning check-mcap check-deploy lint fmt bench torch-venv train clean
 
 all: build
 
@@ -45,6 +45,25 @@ check-mcap:
 	./target/debug/dvnav inspect $(CHECK_RUN) --check | tail -n 1; \
 	$(PYENV)/bin/python scripts/check_mcap.py $(CHECK_RUN)
 
+# deploy/ against the code (scripts/check_deploy.py): the Kubernetes manifests parse, every flag
+# they and the systemd units pass is in `dvnav learner/actor --help`, the probe paths are routed
+# by the learner's HTTP server, ports, Services, volumes and the Dockerfile fit together. Python
+# 3.11+ with PyYAML (installed into a venv under target/ when the system has none); skips, exit
+# 0, without python3.
+check-deploy:
+	@if ! command -v $(PYTHON) >/dev/null 2>&1 || ! $(PYTHON) -c 'import tomllib' >/dev/null 2>&1; then \
+		echo "check-deploy: SKIPPED: no $(PYTHON) 3.11+; deploy/ was not checked"; \
+		exit 0; \
+	fi; \
+	set -e; \
+	$(CARGO) build --bin dvnav; \
+	if $(PYTHON) -c 'import yaml' >/dev/null 2>&1; then py=$(PYTHON); else \
+		[ -x $(PYENV)/bin/python ] || $(PYTHON) -m venv $(PYENV); \
+		$(PYENV)/bin/pip install --quiet --disable-pip-version-check pyyaml; \
+		py=$(PYENV)/bin/python; \
+	fi; \
+	$$py scripts/check_deploy.py ./target/debug/dvnav
+
 lint:
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
@@ -52,12 +71,15 @@ lint:
 fmt:
 	$(CARGO) fmt --all
 
-# Figures as JSON lines: SAC updates/s and policy latency (more targets come with later work).
+# Figures as JSON lines: environment steps/s, transport, SAC updates/s and policy latency, and the
+# DVST controller's command latency at batch 1 over loopback gRPC (`dvnav serve`, target p99 < 2 ms).
 bench: release
 	./target/release/dvnav bench env --json
 	./target/release/dvnav bench transport --json
+	./target/release/dvnav bench replay --json
 	./target/release/dvnav bench learner --batch 256 --torch --json
 	./target/release/dvnav bench learner --batch 128 --torch --json
+	./target/release/dvnav bench serve --json
 
 # Python with PyTorch for the comparison in `make bench` (optional, ~3 GB download).
 torch-venv:

@@ -132,6 +132,48 @@ fn gate_json_has_one_object_per_robot_and_out_dir_and_figure_are_written() {
     assert_eq!(&std::fs::read(&png).unwrap()[1..4], b"PNG");
 }
 
+/// The SAC_RI baseline's checkpoints: the gate robots are driven with their own radius as the
+/// policy's input (no DVST, μ = 1); DVST and the plain agent are refused for them, and the
+/// radius input for a checkpoint without it.
+#[test]
+fn a_radius_input_checkpoint_drives_each_robot_with_its_own_radius() {
+    let dir = tempfile::tempdir().unwrap();
+    let ckpt = dir.path().join("ckpt");
+    let mut cfg = tiny_config();
+    cfg.env.radius_input = true;
+    cfg.env.radius_range = Some([0.2, 0.5]);
+    cfg.curriculum.rooms = vec!["sac_ri".into()];
+    write_checkpoint(&ckpt, &cfg);
+    let path = ckpt.to_str().unwrap();
+    let gate = ["--checkpoint", path, "--scenario", "gate", "--radii", "0.2:0.6:0.2", "--json"];
+    let rows = json(&eval(&gate));
+    let radii: Vec<f64> = rows.iter().map(|r| r["radius"].as_f64().unwrap()).collect();
+    assert_eq!(radii, [0.2, 0.4, 0.6]);
+    for r in &rows {
+        assert_eq!((r["transfer"].as_str(), r["mu"].as_f64()), (Some("radius"), Some(1.0)), "{r}");
+    }
+    let explicit = json(&eval(&[&gate[..], &["--transfer", "radius"]].concat()));
+    assert_eq!(explicit, rows);
+    // The training scenario runs its own room.
+    let rows = json(&eval(&["--checkpoint", path, "--episodes", "2", "--json"]));
+    assert_eq!(rows.len(), 1);
+    assert_eq!((rows[0]["room"].as_str(), rows[0]["episodes"].as_u64()), (Some("sac_ri"), Some(2)));
+
+    let refused = |args: &[&str], words: &str| {
+        let o = eval(args);
+        assert!(!o.status.success());
+        let e = String::from_utf8_lossy(&o.stderr).to_string();
+        assert!(e.contains(words), "{e}");
+    };
+    for t in ["dvst", "none"] {
+        refused(&[&gate[..], &["--transfer", t]].concat(), "takes the robot radius as an input");
+    }
+    let plain = dir.path().join("plain");
+    write_checkpoint(&plain, &tiny_config());
+    let plain_gate = ["--checkpoint", plain.to_str().unwrap(), "--scenario", "gate"];
+    refused(&[&plain_gate[..], &["--transfer", "radius"]].concat(), "env.radius_input = true");
+}
+
 #[test]
 fn dynamic_reports_three_sizes_by_default() {
     let dir = tempfile::tempdir().unwrap();

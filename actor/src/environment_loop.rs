@@ -216,7 +216,7 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
                     v.version,
                     &v.policy,
                     &self.cfg.network,
-                    self.cfg.env.lidar.beams,
+                    self.cfg.obs_layout(),
                 )?
             {
                 self.counters.weight_updates += 1;
@@ -286,7 +286,7 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
                         stage: info.stage,
                         room: stats.room.clone(),
                         seed: self.seed,
-                        footprint: format!("circle r={}", self.cfg.env.robot_radius),
+                        footprint: format!("circle r={}", env.robot_radius()),
                         mu: 1.0,
                         outcome: outcome.to_proto() as i32,
                         steps: stats.steps,
@@ -414,7 +414,7 @@ mod tests {
     fn policy_bytes(cfg: &Config) -> Vec<u8> {
         let vm = candle_nn::VarMap::new();
         let vb = candle_nn::VarBuilder::from_varmap(&vm, candle_core::DType::F32, &Device::Cpu);
-        Actor::new(vb, &cfg.network, cfg.env.lidar.beams).unwrap();
+        Actor::new(vb, &cfg.network, cfg.obs_layout()).unwrap();
         init_seeded(&vm, 5).unwrap();
         varmap_to_safetensors(&vm).unwrap()
     }
@@ -505,6 +505,60 @@ mod tests {
         let later: Vec<_> = b.episodes.iter().filter(|e| !seen.insert(e.env_index)).collect();
         assert!(!later.is_empty());
         assert!(later.iter().all(|e| e.stage == 2 && e.room == "env2"));
+    }
+
+    #[test]
+    fn radius_input_transitions_carry_each_episodes_drawn_radius() {
+        let mut cfg = Config::from_toml_str(include_str!("../../configs/sac_ri.toml")).unwrap();
+        cfg.actor.envs = 3;
+        cfg.env.max_steps = 40;
+        let vars = Variables {
+            version: 1,
+            policy: Arc::new(policy_bytes(&cfg)),
+            stage: 0,
+            room: "sac_ri".into(),
+            warmup: false,
+            stop: false,
+        };
+        let mut el = EnvironmentLoop::new(
+            cfg.clone(),
+            "t".into(),
+            0,
+            5,
+            VecAdder::default(),
+            Fixed(Arc::new(vars)),
+            None,
+        )
+        .unwrap();
+        let mut n = 0;
+        el.run(|_| {
+            n += 1;
+            n <= 200
+        })
+        .unwrap();
+        let (adder, _) = el.finish().unwrap();
+        let b = adder.batch;
+        let d = b.obs_dim;
+        assert_eq!(d, 545);
+        let radius = |obs: &[f32], i: usize| obs[i * d + 544];
+        let mut seen = std::collections::BTreeSet::new();
+        for i in 0..b.len() {
+            let r = radius(&b.observations, i);
+            assert!((0.2..=0.5).contains(&r), "{r}");
+            seen.insert(r.to_bits());
+            if !(b.terminated[i] || b.truncated[i]) {
+                assert_eq!(radius(&b.next_observations, i), r, "one radius per episode");
+            }
+        }
+        // A radius of its own for every episode (the finished ones and up to 3 still open).
+        let episodes = b.episodes.len();
+        assert!(episodes >= 10, "{episodes}");
+        assert!((episodes..=episodes + 3).contains(&seen.len()), "{} radii", seen.len());
+        // The learner's wire validation takes these observations at the config's length.
+        let msg = dvnav_common::wire::batch_to_proto(&b, 0, 0);
+        let back = dvnav_common::wire::batch_from_proto(msg.clone(), cfg.obs_dim()).unwrap();
+        assert_eq!(back.observations, b.observations);
+        assert!(dvnav_common::wire::batch_from_proto(msg, 544).is_err());
     }
 
     #[test]

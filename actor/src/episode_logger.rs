@@ -77,7 +77,7 @@ impl EpisodeSelector {
         self.logger(env_index)?.begin_episode(&EpisodeStart {
             episode_id: id,
             room: env.room().spec(),
-            robot_radius: cfg.env.robot_radius,
+            robot_radius: env.robot_radius(),
             goal: env.goal(),
             lidar: &cfg.env.lidar,
             dt: cfg.env.dt,

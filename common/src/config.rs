@@ -6,6 +6,7 @@
 //! `dvnav train` writes the config it used into the run directory, and the learner ships the same
 //! text to every actor at registration, so one file describes the whole run.
 
+use crate::obs::ObsLayout;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::path::{Path, PathBuf};
@@ -65,6 +66,18 @@ pub struct EnvConfig {
     /// `robot_radius`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub footprint: Option<crate::sim::Footprint>,
+    /// Append the robot's radius (m) to the observation, after ω: the SAC_RI baseline's extra
+    /// input (`configs/sac_ri.toml`). The policy's and the critics' first fully-connected layer
+    /// take one input more. Needs the circular robot (no `footprint`). A policy trained so is
+    /// driven on the gate with each robot's own radius as the input, not through DVST.
+    pub radius_input: bool,
+    /// `[min, max]` (m): every episode of `NavEnv::reset` draws the circular robot's radius
+    /// uniformly from this range (spawn clearance follows the drawn radius); evaluation routes
+    /// (`NavEnv::reset_to`) drive `robot_radius`. Absent: every episode is `robot_radius`.
+    /// A range of more than one radius needs `radius_input`, so that a checkpoint without the
+    /// radius input was always trained as one robot, the meta robot DVST assumes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius_range: Option<[f64; 2]>,
     /// Linear velocity bound v_max (m/s); commands lie in [0, v_max].
     pub v_max: f64,
     /// Angular velocity bound ω_max (rad/s); commands lie in [-ω_max, ω_max].
@@ -92,6 +105,8 @@ impl Default for EnvConfig {
             dt: 0.2,
             robot_radius: 0.2,
             footprint: None,
+            radius_input: false,
+            radius_range: None,
             v_max: 0.5,
             omega_max: std::f64::consts::FRAC_PI_2,
             goal_tolerance: 0.2,
@@ -457,9 +472,20 @@ impl Config {
         format!("{h:016x}")
     }
 
-    /// Length of the flat observation vector: scan, goal (distance, angle), velocity (v, ω).
+    /// The observation layout: the scan, goal (distance, angle), velocity (v, ω), and the
+    /// robot's radius with `env.radius_input`.
+    pub fn obs_layout(&self) -> ObsLayout {
+        self.env.obs_layout()
+    }
+
+    /// Scalars after the scan: 4, or 5 with `env.radius_input`.
+    pub fn obs_extra(&self) -> usize {
+        self.obs_layout().extra()
+    }
+
+    /// Length of the flat observation vector (544 by default).
     pub fn obs_dim(&self) -> usize {
-        self.env.lidar.beams + 4
+        self.obs_layout().dim()
     }
 
     /// Checks every value for range and consistency.
@@ -470,6 +496,7 @@ impl Config {
         if let Some(f) = &e.footprint {
             f.validate().map_err(|err| bad("env.footprint", format!("{err:#}")))?;
         }
+        self.validate_radius_range()?;
         positive("env.v_max", e.v_max)?;
         positive("env.omega_max", e.omega_max)?;
         positive("env.goal_tolerance", e.goal_tolerance)?;
@@ -607,6 +634,66 @@ impl Config {
     }
 }
 
+impl EnvConfig {
+    /// The observation layout of environments with these constants.
+    pub fn obs_layout(&self) -> ObsLayout {
+        ObsLayout { beams: self.lidar.beams, radius_input: self.radius_input }
+    }
+}
+
+impl Config {
+    /// `env.radius_input` and `env.radius_range`: a circular robot, a range of positive radii
+    /// that fits every built-in curriculum room, and the radius input when the range holds
+    /// more than one radius.
+    fn validate_radius_range(&self) -> Result<(), ConfigError> {
+        let e = &self.env;
+        if e.radius_input && e.footprint.is_some() {
+            return Err(bad(
+                "env.radius_input",
+                "the radius input describes the circular robot; remove env.footprint",
+            ));
+        }
+        let Some([lo, hi]) = e.radius_range else { return Ok(()) };
+        if !(lo.is_finite() && hi.is_finite() && 0.0 < lo && lo <= hi) {
+            return Err(bad(
+                "env.radius_range",
+                format!("must be [min, max] with 0 < min ≤ max (m), got [{lo}, {hi}]"),
+            ));
+        }
+        if e.footprint.is_some() {
+            return Err(bad(
+                "env.radius_range",
+                "draws circular robots; it cannot be combined with env.footprint",
+            ));
+        }
+        if lo < hi && !e.radius_input {
+            return Err(bad(
+                "env.radius_range",
+                format!(
+                    "robots of radius {lo} to {hi} m need env.radius_input = true (a policy \
+                     that cannot see the radius); for one robot size set env.robot_radius"
+                ),
+            ));
+        }
+        let need = hi + e.spawn_clearance;
+        for spec in crate::sim::room_file::builtin_specs() {
+            if self.curriculum.rooms.contains(&spec.name) && need >= spec.side / 2.0 {
+                return Err(bad(
+                    "env.radius_range",
+                    format!(
+                        "a robot of radius {hi} m (+ env.spawn_clearance {c}) does not fit \
+                         room `{name}` ({side}x{side} m)",
+                        c = e.spawn_clearance,
+                        name = spec.name,
+                        side = spec.side
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
 impl NetConfig {
     /// Length and channel count of the second convolution's output for a scan of `beams`, or
     /// `None` when a kernel is longer than its input.
@@ -660,6 +747,64 @@ mod tests {
         assert_eq!(Config::from_toml_str(default).unwrap(), Config::default());
         let paper = Config::from_toml_str(include_str!("../../configs/paper.toml")).unwrap();
         assert_eq!((paper.sac.batch_size, paper.sac.updates_per_env_step), (256, 1.0));
+    }
+
+    #[test]
+    fn the_default_observation_is_the_meta_agents_544() {
+        let cfg = Config::default();
+        assert_eq!((cfg.obs_dim(), cfg.obs_extra()), (544, 4));
+        assert!(!cfg.env.radius_input && cfg.env.radius_range.is_none());
+        // A run config written before the radius keys existed (the shipped meta agent's)
+        // loads with the same layout.
+        let old = Config::from_toml_str("[env]\nrobot_radius = 0.2\n").unwrap();
+        assert_eq!(old, cfg);
+        assert!(!cfg.to_toml_string().contains("radius_range"), "absent stays absent");
+    }
+
+    #[test]
+    fn the_sac_ri_config_is_the_defaults_with_the_radius_input_in_the_12_m_room() {
+        let ri = Config::from_toml_str(include_str!("../../configs/sac_ri.toml")).unwrap();
+        assert_eq!(ri.curriculum.rooms, ["sac_ri"]);
+        assert!(ri.env.radius_input);
+        assert_eq!(ri.env.radius_range, Some([0.2, 0.5]));
+        assert_eq!((ri.obs_dim(), ri.obs_extra()), (545, 5));
+        let mut back = ri.clone();
+        (back.env.radius_input, back.env.radius_range) = (false, None);
+        back.curriculum.rooms = CurriculumConfig::default().rooms;
+        assert_eq!(back, Config::default(), "everything else is the default");
+        assert_eq!(Config::from_toml_str(&ri.to_toml_string()).unwrap(), ri);
+    }
+
+    #[test]
+    fn bad_radius_settings_are_refused_with_the_reason() {
+        let refused = |text: &str, key: &str, words: &str| {
+            let e = Config::from_toml_str(text).unwrap_err();
+            assert_eq!(e.key, key, "{e}");
+            assert!(e.reason.contains(words), "{e}");
+        };
+        let ri = "[env]\nradius_input = true\n";
+        refused(&format!("{ri}radius_range = [0.5, 0.2]\n"), "env.radius_range", "0 < min ≤ max");
+        refused(&format!("{ri}radius_range = [0.0, 0.2]\n"), "env.radius_range", "0 < min ≤ max");
+        refused(&format!("{ri}radius_range = [0.2, nan]\n"), "env.radius_range", "0 < min ≤ max");
+        refused("[env]\nradius_range = [0.2, 0.5]\n", "env.radius_range", "radius_input = true");
+        // The largest robot must fit every curriculum room (env3 is 5 m).
+        refused(&format!("{ri}radius_range = [0.2, 2.45]\n"), "env.radius_range", "`env3`");
+        let fp = "[env.footprint]\nname = \"c\"\n[[env.footprint.parts]]\nshape = \"circle\"\n\
+                  center = [0.0, 0.0]\nradius = 0.2\n";
+        refused(&format!("{ri}{fp}"), "env.radius_input", "circular robot");
+        refused(
+            &format!("[env]\nradius_range = [0.3, 0.3]\n{fp}"),
+            "env.radius_range",
+            "env.footprint",
+        );
+        // Accepted: one radius without the input, the input without a range, a big robot in
+        // a big room.
+        let one = Config::from_toml_str("[env]\nradius_range = [0.3, 0.3]\n").unwrap();
+        assert_eq!(one.obs_dim(), 544);
+        assert_eq!(Config::from_toml_str(ri).unwrap().obs_dim(), 545);
+        let big = "[env]\nradius_input = true\nradius_range = [0.2, 2.45]\n\
+                   [curriculum]\nrooms = [\"sac_ri\"]\n";
+        Config::from_toml_str(big).unwrap();
     }
 
     #[test]

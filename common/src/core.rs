@@ -208,3 +208,18 @@ pub trait VariableSource {
     /// The newest variables, if any have been published yet. Never blocks.
     fn latest(&self) -> Option<Arc<Variables>>;
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_score_rewards_fast_success_and_punishes_failure() {
+        // S = 1 − 2·T_s/T_max on success, −1 on collision or timeout (design §4).
+        assert_eq!(score(Outcome::Success, 0, 400), 1.0);
+        assert_eq!(score(Outcome::Success, 100, 400), 0.5);
+        assert_eq!(score(Outcome::Success, 400, 400), -1.0);
+        assert_eq!(score(Outcome::Collision, 10, 400), -1.0);
+        assert_eq!(score(Outcome::Timeout, 400, 400), -1.0);
+    }
+}

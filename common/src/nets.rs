@@ -3,8 +3,9 @@
 //!
 //! Layout: scan → 1/(d + a) with a learned scalar `a` → Conv1d(1→32, k20, s5) → LeakyReLU →
 //! Conv1d(32→32, k10, s3) → LeakyReLU → flatten → Linear(→128) → LeakyReLU → concat
-//! [goal distance, goal angle, v, ω] (and the action, for a critic) → Linear(→256) → ReLU →
-//! Linear(256→256) → ReLU → head.
+//! [goal distance, goal angle, v, ω] (and the robot's radius with the radius input; and the
+//! action, for a critic) → Linear(→256) → ReLU → Linear(256→256) → ReLU → head. The
+//! observation's [`ObsLayout`] sizes the first fully-connected layer.
 //!
 //! Design decisions:
 //! - **Convolutions as unfold + matmul, channels last.** candle's CPU `conv1d` and its backward
@@ -22,7 +23,7 @@
 //!   log(1 − tanh²u) = 2·(ln 2 − u − softplus(−2u)).
 
 use crate::config::NetConfig;
-use crate::obs::{ACTION_DIM, EXTRA};
+use crate::obs::{ACTION_DIM, ObsLayout};
 use candle_core::{D, DType, Device, Module, Result, Tensor};
 use candle_nn::{Linear, VarBuilder, VarMap};
 use rand::{Rng, SeedableRng};
@@ -172,9 +173,12 @@ impl Module for ScanEncoder {
     }
 }
 
-/// Splits a `(batch, beams + 4)` observation into the scan and the four scalars.
-fn split_obs(obs: &Tensor, beams: usize) -> Result<(Tensor, Tensor)> {
-    Ok((obs.narrow(1, 0, beams)?, obs.narrow(1, beams, EXTRA)?))
+/// Splits a `(batch, layout.dim())` observation into the scan and the scalars after it.
+fn split_obs(obs: &Tensor, layout: ObsLayout) -> Result<(Tensor, Tensor)> {
+    if obs.dim(1)? != layout.dim() {
+        candle_core::bail!("observations of {} values, expected {}", obs.dim(1)?, layout.dim());
+    }
+    Ok((obs.narrow(1, 0, layout.beams)?, obs.narrow(1, layout.beams, layout.extra())?))
 }
 
 /// The stochastic policy π_θ(a|s): a tanh-squashed diagonal Gaussian over a ∈ [−1, 1]².
@@ -185,7 +189,7 @@ pub struct Actor {
     fc2: Linear,
     mean: Linear,
     log_std: Linear,
-    beams: usize,
+    layout: ObsLayout,
     log_std_min: f64,
     log_std_max: f64,
 }
@@ -202,10 +206,10 @@ pub struct PolicySample {
 }
 
 impl Actor {
-    /// Builds the policy for scans of `beams` ranges.
-    pub fn new(vb: VarBuilder, cfg: &NetConfig, beams: usize) -> Result<Self> {
-        let encoder = ScanEncoder::new(vb.pp("encoder"), cfg, beams)?;
-        let fc1 = candle_nn::linear(cfg.scan_features + EXTRA, cfg.hidden, vb.pp("fc1"))?;
+    /// Builds the policy for observations of `layout`.
+    pub fn new(vb: VarBuilder, cfg: &NetConfig, layout: ObsLayout) -> Result<Self> {
+        let encoder = ScanEncoder::new(vb.pp("encoder"), cfg, layout.beams)?;
+        let fc1 = candle_nn::linear(cfg.scan_features + layout.extra(), cfg.hidden, vb.pp("fc1"))?;
         let fc2 = candle_nn::linear(cfg.hidden, cfg.hidden, vb.pp("fc2"))?;
         let mean = candle_nn::linear(cfg.hidden, ACTION_DIM, vb.pp("mean"))?;
         let log_std = candle_nn::linear(cfg.hidden, ACTION_DIM, vb.pp("log_std"))?;
@@ -215,7 +219,7 @@ impl Actor {
             fc2,
             mean,
             log_std,
-            beams,
+            layout,
             log_std_min: cfg.log_std_min,
             log_std_max: cfg.log_std_max,
         })
@@ -225,17 +229,22 @@ impl Actor {
     pub fn from_safetensors(
         bytes: &[u8],
         cfg: &NetConfig,
-        beams: usize,
+        layout: ObsLayout,
         dev: &Device,
     ) -> Result<Self> {
         let vb = VarBuilder::from_slice_safetensors(bytes, DType::F32, dev)?;
-        Self::new(vb, cfg, beams)
+        Self::new(vb, cfg, layout)
+    }
+
+    /// The observation layout this policy takes.
+    pub fn layout(&self) -> ObsLayout {
+        self.layout
     }
 
     /// Mean and log standard deviation of the pre-squash Gaussian, each `(batch, 2)`. The log
     /// std is squashed smoothly into [log_std_min, log_std_max].
     pub fn forward(&self, obs: &Tensor) -> Result<(Tensor, Tensor)> {
-        let (scan, extra) = split_obs(obs, self.beams)?;
+        let (scan, extra) = split_obs(obs, self.layout)?;
         let h = Tensor::cat(&[self.encoder.forward(&scan)?, extra], 1)?;
         let h = linear_act(&self.fc1, &h, 0.0)?;
         let h = linear_act(&self.fc2, &h, 0.0)?;
@@ -284,23 +293,23 @@ pub struct Critic {
     fc1: Linear,
     fc2: Linear,
     q: Linear,
-    beams: usize,
+    layout: ObsLayout,
 }
 
 impl Critic {
-    /// Builds a critic for scans of `beams` ranges.
-    pub fn new(vb: VarBuilder, cfg: &NetConfig, beams: usize) -> Result<Self> {
-        let encoder = ScanEncoder::new(vb.pp("encoder"), cfg, beams)?;
-        let fc1 =
-            candle_nn::linear(cfg.scan_features + EXTRA + ACTION_DIM, cfg.hidden, vb.pp("fc1"))?;
+    /// Builds a critic for observations of `layout`.
+    pub fn new(vb: VarBuilder, cfg: &NetConfig, layout: ObsLayout) -> Result<Self> {
+        let encoder = ScanEncoder::new(vb.pp("encoder"), cfg, layout.beams)?;
+        let inputs = cfg.scan_features + layout.extra() + ACTION_DIM;
+        let fc1 = candle_nn::linear(inputs, cfg.hidden, vb.pp("fc1"))?;
         let fc2 = candle_nn::linear(cfg.hidden, cfg.hidden, vb.pp("fc2"))?;
         let q = candle_nn::linear(cfg.hidden, 1, vb.pp("q"))?;
-        Ok(Self { encoder, fc1, fc2, q, beams })
+        Ok(Self { encoder, fc1, fc2, q, layout })
     }
 
     /// Q(s, a) for a batch, shape `(batch,)`.
     pub fn forward(&self, obs: &Tensor, action: &Tensor) -> Result<Tensor> {
-        let (scan, extra) = split_obs(obs, self.beams)?;
+        let (scan, extra) = split_obs(obs, self.layout)?;
         self.head(&self.encoder.forward(&scan)?, &extra, action)
     }
 
@@ -309,7 +318,7 @@ impl Critic {
     /// loss only needs ∂Q/∂a (the critic's own gradients are dropped there), and the scan
     /// encoder's backward pass is the most expensive part of a critic's.
     pub fn forward_for_policy(&self, obs: &Tensor, action: &Tensor) -> Result<Tensor> {
-        let (scan, extra) = split_obs(obs, self.beams)?;
+        let (scan, extra) = split_obs(obs, self.layout)?;
         self.head(&self.encoder.forward(&scan)?.detach(), &extra, action)
     }
 
@@ -385,7 +394,7 @@ mod tests {
         let cfg = Config::default();
         let vm = VarMap::new();
         let vb = VarBuilder::from_varmap(&vm, DType::F32, &Device::Cpu);
-        let a = Actor::new(vb, &cfg.network, cfg.env.lidar.beams).unwrap();
+        let a = Actor::new(vb, &cfg.network, cfg.obs_layout()).unwrap();
         init_seeded(&vm, seed).unwrap();
         (vm, a)
     }
@@ -428,7 +437,8 @@ mod tests {
         assert_eq!(b1, varmap_to_safetensors(&vm2).unwrap());
         assert_ne!(b1, varmap_to_safetensors(&vm3).unwrap());
         let cfg = Config::default();
-        let loaded = Actor::from_safetensors(&b1, &cfg.network, 540, &Device::Cpu).unwrap();
+        let loaded =
+            Actor::from_safetensors(&b1, &cfg.network, cfg.obs_layout(), &Device::Cpu).unwrap();
         let o = obs(3);
         let d = (a1.deterministic(&o).unwrap() - loaded.deterministic(&o).unwrap())
             .unwrap()
@@ -471,11 +481,60 @@ mod tests {
     }
 
     #[test]
+    fn the_radius_input_widens_the_first_fully_connected_layers_by_one() {
+        let fc1 = |vm: &VarMap| vm.data().lock().unwrap()["fc1.weight"].dims().to_vec();
+        let mut cfg = Config::default();
+        let (standard, _) = actor(1);
+        assert_eq!(fc1(&standard), vec![256, 128 + 4], "the meta agent's shape is unchanged");
+        let bytes = varmap_to_safetensors(&standard).unwrap();
+        cfg.env.radius_input = true;
+        let layout = cfg.obs_layout();
+        assert_eq!(layout.dim(), 545);
+        let (am, cm) = (VarMap::new(), VarMap::new());
+        let a = Actor::new(
+            VarBuilder::from_varmap(&am, DType::F32, &Device::Cpu),
+            &cfg.network,
+            layout,
+        )
+        .unwrap();
+        let c = Critic::new(
+            VarBuilder::from_varmap(&cm, DType::F32, &Device::Cpu),
+            &cfg.network,
+            layout,
+        )
+        .unwrap();
+        init_seeded(&am, 2).unwrap();
+        assert_eq!(fc1(&am), vec![256, 128 + 5]);
+        assert_eq!(fc1(&cm), vec![256, 128 + 5 + 2]);
+        let o = Tensor::ones((3, 545), DType::F32, &Device::Cpu).unwrap();
+        assert_eq!(a.deterministic(&o).unwrap().dims(), &[3, 2]);
+        let act = Tensor::zeros((3, 2), DType::F32, &Device::Cpu).unwrap();
+        assert_eq!(c.forward(&o, &act).unwrap().dims(), &[3]);
+        // The radius reaches the policy: another radius, another action.
+        let mut v = vec![1.0f32; 545];
+        v[544] = 0.5;
+        let o2 = Tensor::from_vec(v, (1, 545), &Device::Cpu).unwrap();
+        let d = (a.deterministic(&o.narrow(0, 0, 1).unwrap()).unwrap()
+            - a.deterministic(&o2).unwrap())
+        .unwrap()
+        .abs()
+        .unwrap()
+        .max_all()
+        .unwrap()
+        .to_scalar::<f32>()
+        .unwrap();
+        assert!(d > 0.0);
+        // Observations of the other layout, and weights of the other network, are refused.
+        assert!(a.deterministic(&obs(2)).is_err());
+        assert!(Actor::from_safetensors(&bytes, &cfg.network, layout, &Device::Cpu).is_err());
+    }
+
+    #[test]
     fn critic_gives_one_value_per_sample() {
         let cfg = Config::default();
         let vm = VarMap::new();
         let vb = VarBuilder::from_varmap(&vm, DType::F32, &Device::Cpu);
-        let c = Critic::new(vb, &cfg.network, 540).unwrap();
+        let c = Critic::new(vb, &cfg.network, cfg.obs_layout()).unwrap();
         let q = c.forward(&obs(4), &Tensor::zeros((4, 2), DType::F32, &Device::Cpu).unwrap());
         assert_eq!(q.unwrap().dims(), &[4]);
     }

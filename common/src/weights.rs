@@ -6,6 +6,7 @@
 
 use crate::config::NetConfig;
 use crate::nets::Actor;
+use crate::obs::ObsLayout;
 use candle_core::Device;
 
 /// The actor's current policy network and the version it was built from.
@@ -25,18 +26,19 @@ impl PolicyHandle {
         self.current.as_ref().map(|(_, a)| a)
     }
 
-    /// Rebuilds the policy when `version` is newer than the loaded one.
+    /// Rebuilds the policy for observations of `layout` when `version` is newer than the
+    /// loaded one.
     pub fn update(
         &mut self,
         version: u64,
         bytes: &[u8],
         cfg: &NetConfig,
-        beams: usize,
+        layout: ObsLayout,
     ) -> anyhow::Result<bool> {
         if version <= self.version() {
             return Ok(false);
         }
-        let actor = Actor::from_safetensors(bytes, cfg, beams, &Device::Cpu)?;
+        let actor = Actor::from_safetensors(bytes, cfg, layout, &Device::Cpu)?;
         self.current = Some((version, actor));
         Ok(true)
     }

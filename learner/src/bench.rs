@@ -56,8 +56,9 @@ pub fn sac_updates(
     batch: usize,
     warmup: usize,
     updates: usize,
+    dev: &Device,
 ) -> anyhow::Result<LearnerBench> {
-    let dev = Device::Cpu;
+    let dev = dev.clone();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(0);
     let replay = random_replay(cfg, 4 * batch, &mut rng);
     let nets = SacNetworks::new(cfg, 0, &dev)?;
@@ -67,11 +68,14 @@ pub fn sac_updates(
         replay.sample_into(batch, &mut rng, &mut b);
         learner.update(&b)?;
     }
+    dev.synchronize()?;
     let t = Instant::now();
     for _ in 0..updates {
         replay.sample_into(batch, &mut rng, &mut b);
         learner.update(&b)?;
     }
+    // A GPU runs asynchronously: the time counts only once its queue is done.
+    dev.synchronize()?;
     let secs = t.elapsed().as_secs_f64();
 
     let latency = |n: usize| -> anyhow::Result<f64> {
@@ -94,7 +98,7 @@ pub fn sac_updates(
             .ok()
             .and_then(|v| v.parse().ok())
             .unwrap_or_else(candle_core::utils::get_num_threads),
-        device: "cpu".into(),
+        device: crate::device::name(&dev),
         network: format!(
             "conv({}x{}/{})-conv({}x{}/{})-fc{}-fc{}x2",
             n.conv1_channels,
@@ -158,8 +162,10 @@ pub fn replay(cfg: &Config, capacity: usize, batch: usize) -> anyhow::Result<Rep
     while made < capacity {
         let commands: Vec<(f64, f64)> = (0..n_envs)
             .map(|i| {
-                let o =
-                    dvnav_common::obs::ObsView::new(&obs[i * d..(i + 1) * d], cfg.env.lidar.beams);
+                let o = dvnav_common::obs::ObsView::with_layout(
+                    &obs[i * d..(i + 1) * d],
+                    cfg.obs_layout(),
+                );
                 let (v, w) = pid_velocity(
                     o.goal_distance() as f64,
                     o.goal_angle() as f64,

@@ -13,6 +13,7 @@
 //! - [`sac`]: networks, Adam, the losses ([`sac::learning`]) and [`sac::SacLearner`].
 //! - [`variable_source`]: versioned weights out to actors.
 //! - [`curriculum`]: the room curriculum rule.
+//! - [`device`]: `--device cpu|cuda[:N]`.
 //! - [`evaluator`]: the evaluation protocol during training (routes and random episodes of
 //!   every curriculum room, on its own thread) into `eval.csv`.
 //! - [`trainer`]: the training thread. [`checkpoint`]: atomic checkpoints and exact resume.
@@ -22,6 +23,7 @@
 pub mod bench;
 pub mod checkpoint;
 pub mod curriculum;
+pub mod device;
 pub mod evaluator;
 pub mod metrics;
 pub mod rate_limiter;

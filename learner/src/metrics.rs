@@ -8,10 +8,13 @@
 //!   [`RATE_WINDOW`], the lag of the transitions since the previous sample. [`record`] runs it,
 //!   appends a CSV row per sample and keeps the rendered text for the HTTP layer.
 //! - [`serve`] is a minimal HTTP/1.1 responder (one request per connection, `Connection:
-//!   close`): enough for Prometheus, curl and a browser, with no HTTP stack to configure.
-//!   Rendering is the plain function [`render_prometheus`], unit-tested on its own.
+//!   close`): enough for Prometheus, curl, a browser and Kubernetes probes, with no HTTP stack
+//!   to configure. Rendering is the plain function [`render_prometheus`], unit-tested on its
+//!   own. Besides `/metrics` it answers the health probes: `GET /healthz` (200 while the
+//!   process serves) and `GET /readyz` (200 while the learner takes actors, 503 while starting
+//!   and once the run is finished; [`LearnerState::readiness`]).
 
-use crate::state::{LearnerState, StatusSnapshot};
+use crate::state::{LearnerState, Readiness, StatusSnapshot};
 use dvnav_common::core::{Outcome, TransitionBatch};
 use serde::Serialize;
 use std::collections::{BTreeMap, VecDeque};
@@ -538,7 +541,12 @@ pub async fn record(
     Ok(())
 }
 
-/// Serves `GET /metrics` (the latest rendered sample) on `listener` until `shutdown` resolves.
+/// Paths the HTTP server answers (Kubernetes probes point at the last two;
+/// `make check-deploy` checks the manifests against this list).
+pub const HTTP_PATHS: [&str; 4] = ["/", "/metrics", "/healthz", "/readyz"];
+
+/// Serves `GET /metrics` (the latest rendered sample), `/healthz` and `/readyz` on `listener`
+/// until `shutdown` resolves.
 pub async fn serve(
     listener: TcpListener,
     shutdown: impl Future<Output = ()>,
@@ -553,7 +561,7 @@ pub async fn serve(
                     tokio::spawn(async move {
                         let reply = tokio::time::timeout(
                             REQUEST_TIMEOUT,
-                            respond(sock, || state.live().text()),
+                            respond(sock, &state),
                         )
                         .await;
                         if let Ok(Err(e)) = reply {
@@ -572,7 +580,7 @@ pub async fn serve(
 }
 
 /// Reads one request head and answers it.
-async fn respond(mut sock: TcpStream, text: impl Fn() -> Arc<String>) -> std::io::Result<()> {
+async fn respond(mut sock: TcpStream, state: &LearnerState) -> std::io::Result<()> {
     let mut buf = Vec::with_capacity(1024);
     let mut chunk = [0u8; 1024];
     while !buf.windows(4).any(|w| w == b"\r\n\r\n") {
@@ -590,14 +598,39 @@ async fn respond(mut sock: TcpStream, text: impl Fn() -> Arc<String>) -> std::io
     let (method, target) = (parts.next().unwrap_or(""), parts.next().unwrap_or(""));
     let path = target.split('?').next().unwrap_or("");
     const PROM: &str = "text/plain; version=0.0.4; charset=utf-8";
+    const TEXT: &str = "text/plain; charset=utf-8";
+    let head_only = method == "HEAD";
+    let probe =
+        |status: &'static str, body: &'static str| (status, if head_only { "" } else { body });
     match (method, path) {
-        ("GET", "/metrics") => write_response(&mut sock, "200 OK", PROM, &text()).await,
+        ("GET", "/metrics") => {
+            write_response(&mut sock, "200 OK", PROM, &state.live().text()).await
+        }
         ("HEAD", "/metrics") => write_response(&mut sock, "200 OK", PROM, "").await,
         ("GET", "/") => {
-            let body = "dvnav learner: Prometheus metrics at /metrics\n";
-            write_response(&mut sock, "200 OK", "text/plain; charset=utf-8", body).await
+            let body =
+                "dvnav learner: Prometheus metrics at /metrics; probes at /healthz and /readyz\n";
+            write_response(&mut sock, "200 OK", TEXT, body).await
         }
-        (_, "/metrics") => write_response(&mut sock, "405 Method Not Allowed", "", "").await,
+        // Liveness: this answer comes from the learner's runtime, so a process that answers
+        // is alive and not wedged in its I/O.
+        ("GET" | "HEAD", "/healthz") => {
+            let (status, body) = probe("200 OK", "ok\n");
+            write_response(&mut sock, status, TEXT, body).await
+        }
+        ("GET" | "HEAD", "/readyz") => {
+            let (status, body) = match state.readiness() {
+                Readiness::Ready => probe("200 OK", "ready\n"),
+                Readiness::Starting => probe("503 Service Unavailable", "starting\n"),
+                Readiness::Finished => {
+                    probe("503 Service Unavailable", "finished: the run takes no more actors\n")
+                }
+            };
+            write_response(&mut sock, status, TEXT, body).await
+        }
+        (_, "/metrics" | "/healthz" | "/readyz") => {
+            write_response(&mut sock, "405 Method Not Allowed", "", "").await
+        }
         _ => write_response(&mut sock, "404 Not Found", "text/plain", "not found\n").await,
     }
 }
@@ -825,5 +858,52 @@ mod tests {
         tx.send(()).unwrap();
         server.await.unwrap().unwrap();
         assert!(TcpStream::connect(addr).await.is_err(), "the listener is closed");
+    }
+
+    fn status_line(reply: &str) -> &str {
+        reply.lines().next().unwrap_or("")
+    }
+
+    #[tokio::test]
+    async fn health_and_readiness_follow_the_run() {
+        let s = Arc::new(LearnerState::new(config(), "r".into(), None, vec![]));
+        let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+        let server = tokio::spawn(serve(
+            listener,
+            async move {
+                let _ = rx.await;
+            },
+            s.clone(),
+        ));
+        let get = |path: &str| format!("GET {path} HTTP/1.1\r\nHost: x\r\n\r\n");
+        let healthz = http(addr, &get("/healthz")).await;
+        assert_eq!(status_line(&healthz), "HTTP/1.1 200 OK", "{healthz}");
+        assert!(healthz.ends_with("\r\n\r\nok\n"), "{healthz}");
+        // No gRPC service yet: starting.
+        let starting = http(addr, &get("/readyz")).await;
+        assert_eq!(status_line(&starting), "HTTP/1.1 503 Service Unavailable", "{starting}");
+        assert!(starting.ends_with("starting\n"), "{starting}");
+
+        let _service = crate::service::LearnerService::new(s.clone());
+        let ready = http(addr, &get("/readyz")).await;
+        assert_eq!(status_line(&ready), "HTTP/1.1 200 OK", "{ready}");
+        let head = http(addr, "HEAD /readyz HTTP/1.1\r\n\r\n").await;
+        assert!(head.starts_with("HTTP/1.1 200 OK") && head.ends_with("\r\n\r\n"), "{head}");
+        assert!(http(addr, "POST /readyz HTTP/1.1\r\n\r\n").await.starts_with("HTTP/1.1 405"));
+
+        // The step budget is reached (or Ctrl-C): no more actors, though still alive.
+        s.finish();
+        let finished = http(addr, &get("/readyz")).await;
+        assert_eq!(status_line(&finished), "HTTP/1.1 503 Service Unavailable", "{finished}");
+        assert!(finished.contains("finished"), "{finished}");
+        assert!(http(addr, &get("/healthz")).await.starts_with("HTTP/1.1 200 OK"));
+        for path in HTTP_PATHS {
+            let reply = http(addr, &get(path)).await;
+            assert!(!reply.starts_with("HTTP/1.1 404"), "{path} is routed: {reply}");
+        }
+        tx.send(()).unwrap();
+        server.await.unwrap().unwrap();
     }
 }

@@ -32,6 +32,8 @@ pub struct LearnerOptions {
     /// Serve Prometheus metrics (`GET /metrics`) on this listener, bound by the caller
     /// (`--metrics-addr`). `metrics.csv` in `out_dir` is written either way.
     pub metrics_listener: Option<Arc<std::net::TcpListener>>,
+    /// Where the networks train (`--device`): the CPU, or a CUDA GPU.
+    pub device: Device,
 }
 
 /// The learner's part of `run_summary.json`.
@@ -65,7 +67,8 @@ pub async fn run(
         opts.out_dir.file_name().and_then(|n| n.to_str()).unwrap_or("run").to_string()
     });
 
-    let device = Device::Cpu;
+    let device = opts.device.clone();
+    tracing::info!(device = %crate::device::name(&device), "learner device");
     let nets = SacNetworks::new(&cfg, cfg.run.seed, &device)?;
     let mut learner = SacLearner::new(nets, cfg.sac.clone(), device, cfg.run.seed ^ 0x0005_ac00)?;
     let mut sample_rng = trainer::sample_rng(cfg.run.seed);

@@ -33,8 +33,10 @@ pub struct LearnerService {
 }
 
 impl LearnerService {
-    /// Serves `state`.
+    /// Serves `state`; from here on the state reports itself ready to take actors
+    /// ([`LearnerState::readiness`]).
     pub fn new(state: Arc<LearnerState>) -> Self {
+        state.set_serving();
         Self { state }
     }
 
@@ -164,12 +166,13 @@ impl Learner for LearnerService {
         tokio::spawn(async move {
             let mut shutdown = state.shutdown_signal();
             let mut actor: Option<u32> = None;
-            let reason = loop {
+            // Why the stream ended, and whether that was the actor's (or the learner's) plan.
+            let (reason, expected) = loop {
                 let next = tokio::select! {
                     m = inbound.message() => m,
                     _ = wait_true(&mut shutdown) => {
                         let _ = tx.send(Err(Status::unavailable("the learner is shutting down"))).await;
-                        break "learner shutdown".to_string();
+                        break ("learner shutdown".to_string(), true);
                     }
                 };
                 match next {
@@ -179,7 +182,18 @@ impl Learner for LearnerService {
                             state.set_connected(batch.actor_id, true);
                         }
                         let sequence = batch.sequence;
-                        match state.ingest(batch).await {
+                        let ingested = tokio::select! {
+                            r = state.ingest(batch) => r,
+                            // The actor vanished (killed, or its connection broke) while its
+                            // batch waited for room in the replay buffer: it never learns the
+                            // outcome, so the batch is dropped uncounted (`ingest` is cancel-safe
+                            // until it inserts); a living actor resends it after reconnecting.
+                            () = tx.closed() => break (
+                                format!("the actor went away; its batch {sequence}, not yet inserted, was dropped"),
+                                false,
+                            ),
+                        };
+                        match ingested {
                             Ok(ack) => {
                                 let ack = pb::BatchAck {
                                     sequence,
@@ -187,23 +201,31 @@ impl Learner for LearnerService {
                                     duplicate: ack.duplicate,
                                 };
                                 if tx.send(Ok(ack)).await.is_err() {
-                                    break "actor went away".to_string();
+                                    break ("the actor went away".to_string(), false);
                                 }
                             }
                             Err(e) => {
                                 let reason = e.to_string();
                                 let _ = tx.send(Err(e.into())).await;
-                                break reason;
+                                break (reason, false);
                             }
                         }
                     }
-                    Ok(None) => break "stream closed by the actor".to_string(),
-                    Err(status) => break format!("stream error: {}", status.message()),
+                    Ok(None) => break ("stream closed by the actor".to_string(), true),
+                    Err(status) => break (format!("stream error: {}", status.message()), false),
                 }
             };
-            if let Some(id) = actor {
-                state.set_connected(id, false);
-                tracing::info!(actor_id = id, %reason, "actor transition stream ended");
+            if let Some(id) = actor
+                && let Some(a) = state.set_connected(id, false)
+            {
+                let (name, received, batches) = (&a.name, a.transitions_received, a.batches);
+                if expected {
+                    tracing::info!(actor = %name, actor_id = id, %reason, received, batches, "actor transition stream ended");
+                } else {
+                    // A killed actor process lands here as soon as its socket closes; one whose
+                    // machine vanished once HTTP/2 keepalive gives up (see `transport_server`).
+                    tracing::warn!(actor = %name, actor_id = id, %reason, received, batches, connected = a.connected, "actor transition stream ended abnormally");
+                }
             }
         });
         Ok(Response::new(Box::pin(ReceiverStream::new(rx))))

@@ -640,6 +640,41 @@ mod tests {
         assert!(s.variables().current().stop);
     }
 
+    /// Two streams of one actor id (a restarted process under the same name while the learner
+    /// has not yet seen the old stream end) both wait under backpressure with batch 1: it is
+    /// inserted once, the other copy is acknowledged as a duplicate.
+    #[tokio::test]
+    async fn a_sequence_number_is_inserted_once_across_streams_of_one_actor() {
+        let mut cfg = small_config();
+        cfg.run.steps = 1_000;
+        cfg.sac.learning_starts = 0;
+        cfg.learner.max_steps_ahead = 3;
+        let s = Arc::new(LearnerState::new(cfg.clone(), "r".into(), None, vec![]));
+        let id = s.register("a", dvnav_proto::PROTOCOL_VERSION).unwrap().actor_id;
+        assert_eq!(s.ingest(batch(&cfg, 3, id, 0)).await.unwrap().accepted, 3);
+        // No updates: the next batches wait for room.
+        let send = |seq| {
+            let (s, b) = (s.clone(), batch(&cfg, 3, id, seq));
+            tokio::spawn(async move { s.ingest(b).await.unwrap() })
+        };
+        let (first, second) = (send(1), send(1));
+        for _ in 0..10 {
+            tokio::task::yield_now().await;
+        }
+        assert!(!first.is_finished() && !second.is_finished(), "both wait under backpressure");
+        assert_eq!(s.status().transitions_received, 3);
+        s.limiter().close();
+        let mut acks = [first.await.unwrap(), second.await.unwrap()];
+        acks.sort_by_key(|a| a.duplicate);
+        assert_eq!(
+            acks,
+            [Ack { accepted: 3, duplicate: false }, Ack { accepted: 0, duplicate: true }]
+        );
+        let st = s.status();
+        assert_eq!((st.transitions_received, st.replay_size), (6, 6));
+        assert_eq!(st.actors[0].duplicate_batches, 1);
+    }
+
     #[test]
     fn refuses_other_protocol_versions_and_wrong_tokens() {
         let s = LearnerState::new(small_config(), "r".into(), Some("t0k".into()), vec![]);

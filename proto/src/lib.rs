@@ -1,11 +1,12 @@
 //! dvnav's protobuf definitions, compiled once here (protox + tonic-prost-build, no system
-//! `protoc`): the learner gRPC service (`dvnav.v1.Learner`) that actors talk to, and the dvnav
-//! messages written into MCAP episode logs. Both sides of the wire and the log writer use these
-//! types, so `proto/` is the one source of truth.
+//! `protoc`): the learner gRPC service (`dvnav.v1.Learner`) that actors talk to, the dvnav
+//! messages written into MCAP episode logs, and the DVST controller service
+//! (`dvnav.controller.v1.Controller`, [`controller::v1`]) that robots call. Both sides of the
+//! wire and the log writer use these types, so `proto/` is the one source of truth.
 //!
-//! [`FILE_DESCRIPTOR_SET`] is the encoded `FileDescriptorSet` of every dvnav file; MCAP schemas
-//! embed it so any protobuf-aware reader (Foxglove, Python `mcap-protobuf-support`) decodes our
-//! messages without our code.
+//! [`FILE_DESCRIPTOR_SET`] is the encoded `FileDescriptorSet` of the `dvnav/v1/` files; MCAP
+//! schemas embed it so any protobuf-aware reader (Foxglove, Python `mcap-protobuf-support`)
+//! decodes our messages without our code.
 
 /// Version of the actor ⇄ learner protocol; a learner refuses actors that speak another one.
 pub const PROTOCOL_VERSION: u32 = 1;
@@ -26,3 +27,13 @@ pub mod v1 {
 }
 
 pub use v1::*;
+
+/// The DVST controller service (`dvnav serve`), package `dvnav.controller.v1`: a robot's
+/// scan, goal and velocity in, a velocity command out.
+pub mod controller {
+    /// Generated types of package `dvnav.controller.v1`.
+    #[allow(missing_docs, clippy::all)]
+    pub mod v1 {
+        tonic::include_proto!("dvnav.controller.v1");
+    }
+}

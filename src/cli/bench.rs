@@ -63,15 +63,43 @@ enum BenchWhat {
         /// candle CPU threads (default: the config's `learner.threads`).
         #[arg(long)]
         threads: Option<usize>,
+        /// `cpu`, or `cuda` / `cuda:N` (a build with `--features cuda`).
+        #[arg(long, default_value = "cpu")]
+        device: String,
         /// Also time the same update in PyTorch (`scripts/bench_torch.py`, same batch and
         /// threads) if Python with torch is found: $DVNAV_TORCH_PYTHON, ./.venv/bin/python3 or
         /// python3. The Rust figure never depends on it.
         #[arg(long)]
         torch: bool,
+        /// With --torch: alternate dvnav and PyTorch this many times and report each side's
+        /// median, so a load change on a shared machine hits both alike.
+        #[arg(long, default_value_t = 3)]
+        rounds: usize,
         /// Print one JSON object.
         #[arg(long)]
         json: bool,
     },
+    /// DVST controller latency at batch 1 (`dvnav serve`): `Act` round trips over loopback
+    /// gRPC, and the same commands in-process (checks, DVST and the policy, no network).
+    Serve {
+        /// The meta agent (default: the shipped `models/meta-r0.2`).
+        #[arg(long)]
+        checkpoint: Option<PathBuf>,
+        /// The robot (default: `footprints/paper-medium.toml`, μ = 1.85).
+        #[arg(long)]
+        footprint: Option<PathBuf>,
+        /// Commands timed each way (after 50 warm-up calls).
+        #[arg(long, default_value_t = 2_000)]
+        calls: usize,
+        /// Print one JSON object.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
 }
 
 /// Runs `scripts/bench_torch.py`; `Err` says why there is no PyTorch figure.
@@ -143,21 +171,36 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
                 );
             }
         }
-        BenchWhat::Learner { config, batch, updates, threads, torch, json } => {
+        BenchWhat::Learner { config, batch, updates, threads, device, torch, rounds, json } => {
             let cfg = super::load_config(config.as_ref())?;
             let threads = threads.unwrap_or(cfg.learner.threads).max(1);
             // candle sizes its pool from this on first use, which comes after this point; no
             // other thread runs yet.
             unsafe { std::env::set_var("CANDLE_NUM_THREADS", threads.to_string()) };
-            let r = dvnav_learner::bench::sac_updates(&cfg, batch, 3, updates)?;
-            let reference = torch.then(|| torch_figure(batch, threads, updates));
-            if let Some(Err(why)) = &reference {
-                eprintln!("PyTorch comparison skipped: {why}");
+            let dev = dvnav_learner::device::parse(&device)?;
+            let mut r = dvnav_learner::bench::sac_updates(&cfg, batch, 3, updates, &dev)?;
+            let mut torch_rate = None;
+            if torch {
+                // Alternate the two so that both see the same machine; medians of each.
+                let (mut ours, mut theirs) = (vec![r.sac_updates_per_s], Vec::new());
+                for round in 0..rounds.max(1) {
+                    if round > 0 {
+                        let again =
+                            dvnav_learner::bench::sac_updates(&cfg, batch, 1, updates, &dev)?;
+                        ours.push(again.sac_updates_per_s);
+                    }
+                    match torch_figure(batch, threads, updates) {
+                        Ok(v) => theirs.extend(v["torch_sac_updates_per_s"].as_f64()),
+                        Err(why) => {
+                            eprintln!("PyTorch comparison skipped: {why}");
+                            break;
+                        }
+                    }
+                }
+                r.sac_updates_per_s = median(&mut ours);
+                r.ms_per_update = 1e3 / r.sac_updates_per_s;
+                torch_rate = (!theirs.is_empty()).then(|| median(&mut theirs));
             }
-            let torch_rate = reference
-                .as_ref()
-                .and_then(|r| r.as_ref().ok())
-                .and_then(|v| v["torch_sac_updates_per_s"].as_f64());
             if json {
                 let mut v = serde_json::to_value(&r)?;
                 v["torch_sac_updates_per_s"] = serde_json::json!(torch_rate);
@@ -181,6 +224,17 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
                     r.inference_ms_batch1,
                     r.inference_ms_batch64
                 );
+            }
+        }
+        BenchWhat::Serve { checkpoint, footprint, calls, json } => {
+            let repo = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+            let checkpoint = checkpoint.unwrap_or_else(|| repo.join("models/meta-r0.2"));
+            let footprint = footprint.unwrap_or_else(|| repo.join("footprints/paper-medium.toml"));
+            let r = super::serve::bench(&checkpoint, &footprint, calls)?;
+            if json {
+                println!("{}", serde_json::to_string(&r)?);
+            } else {
+                println!("{}", r.summary());
             }
         }
     }

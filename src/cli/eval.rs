@@ -41,10 +41,16 @@ pub struct EvalArgs {
     /// Seed of the random episodes' starts and goals.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// How a robot of another size is driven (gate, dynamic): through DVST (design §5), or by
-    /// the plain meta agent as if it were the meta robot.
-    #[arg(long, value_enum, default_value_t = Transfer::Dvst)]
-    pub transfer: Transfer,
+    /// How a robot of another size is driven (gate, dynamic): through DVST (design §5), by
+    /// the plain meta agent as if it were the meta robot, or with its own radius as the
+    /// policy's input. Default: `radius` for a checkpoint trained with the radius input
+    /// (`env.radius_input`, the SAC_RI baseline), `dvst` otherwise.
+    #[arg(long, value_enum)]
+    pub transfer: Option<Transfer>,
+    /// DVST safety margin (m): the scaled robot covers the robot inflated by this much (the
+    /// paper inflates its real robots' radii by 0.03 m).
+    #[arg(long, default_value_t = 0.0)]
+    pub margin: f64,
     /// Print JSON: one object per room (training, dynamic) or per robot (gate).
     #[arg(long)]
     pub json: bool,
@@ -88,6 +94,39 @@ pub enum Transfer {
     Dvst,
     /// The meta agent unchanged.
     None,
+    /// The robot's own radius as the policy's extra input, no DVST: checkpoints trained with
+    /// `env.radius_input = true` (the environments write each robot's radius after ω).
+    Radius,
+}
+
+impl Transfer {
+    fn name(self) -> &'static str {
+        match self {
+            Transfer::Dvst => "dvst",
+            Transfer::None => "none",
+            Transfer::Radius => "radius",
+        }
+    }
+
+    /// `--transfer`, or its default for the checkpoint: a policy with the radius input is
+    /// driven with each robot's radius, one without it cannot be.
+    fn for_checkpoint(asked: Option<Transfer>, cfg: &Config) -> anyhow::Result<Transfer> {
+        match (asked, cfg.env.radius_input) {
+            (None, true) | (Some(Transfer::Radius), true) => Ok(Transfer::Radius),
+            (None, false) => Ok(Transfer::Dvst),
+            (Some(Transfer::Radius), false) => anyhow::bail!(
+                "--transfer radius needs a checkpoint trained with the radius input \
+                 (env.radius_input = true in its config.toml)"
+            ),
+            (Some(t), true) => anyhow::bail!(
+                "--transfer {}: this checkpoint takes the robot radius as an input \
+                 (env.radius_input = true); it drives each robot with its own radius \
+                 (--transfer radius, the default)",
+                t.name()
+            ),
+            (Some(t), false) => Ok(t),
+        }
+    }
 }
 
 /// Parsed `--radii`.
@@ -115,17 +154,28 @@ fn load_checkpoint(path: &Path) -> anyhow::Result<(Vec<u8>, Config)> {
 }
 
 /// The one place that decides what drives a robot of radius `radius`: the meta agent wrapped
-/// in DVST for that robot (μ = radius / meta radius), or the plain meta agent. Returns the
-/// policy and μ.
+/// in DVST for that robot (μ = radius / meta radius), the plain meta agent, or (`Radius`) the
+/// agent of a radius-input checkpoint, which reads the robot's radius from its observation:
+/// the environments of the checkpoint's `env` config write it after ω, taken from the robot
+/// they simulate, so the radius seen is always that robot's own. Returns the policy and μ.
 fn robot_policy(
     weights: &[u8],
     cfg: &Config,
     radius: f64,
     transfer: Transfer,
+    margin: f64,
 ) -> anyhow::Result<(Box<dyn NavPolicy>, f64)> {
     let agent = MetaAgent::from_safetensors(weights, cfg)?;
     match transfer {
-        Transfer::None => Ok((Box::new(agent), 1.0)),
+        Transfer::None | Transfer::Radius => {
+            anyhow::ensure!(
+                (transfer == Transfer::Radius) == cfg.env.radius_input,
+                "--transfer {} does not fit a checkpoint with env.radius_input = {}",
+                transfer.name(),
+                cfg.env.radius_input
+            );
+            Ok((Box::new(agent), 1.0))
+        }
         Transfer::Dvst => {
             let trained = cfg
                 .env
@@ -135,7 +185,7 @@ fn robot_policy(
             let meta = MetaRobot::from_footprint(&trained).ok_or_else(|| {
                 anyhow::anyhow!("DVST needs a circular or rectangular meta robot; the checkpoint's robot is `{}`", trained.name)
             })?;
-            let robot = VariedRobot { meta, ..VariedRobot::new(Footprint::circle(radius)) };
+            let robot = VariedRobot { meta, margin, ..VariedRobot::new(Footprint::circle(radius)) };
             let lidar = &cfg.env.lidar;
             let dvst = Dvst::new(agent, robot)?
                 .with_scan_range(Some([lidar.range_min, lidar.range_max]))?;
@@ -185,11 +235,17 @@ fn tasks(args: &EvalArgs, cfg: &Config) -> anyhow::Result<Vec<Task>> {
 /// Runs `dvnav eval`.
 pub fn run(args: EvalArgs) -> anyhow::Result<ExitCode> {
     anyhow::ensure!(args.batch > 0, "--batch must be at least 1");
+    anyhow::ensure!(
+        args.margin.is_finite() && args.margin >= 0.0,
+        "--margin must be a length of at least 0 m, not {}",
+        args.margin
+    );
     if args.scenario == Scenario::Training && args.radii.is_some() {
         anyhow::bail!("--radii is for the gate and dynamic scenarios");
     }
     let started = Instant::now();
     let (weights, cfg) = load_checkpoint(&args.checkpoint)?;
+    let transfer = Transfer::for_checkpoint(args.transfer, &cfg)?;
     let tasks = tasks(&args, &cfg)?;
     // Policies: one shared meta agent (one batch) for training, one per robot otherwise.
     let mut owned: Vec<Box<dyn NavPolicy>> = Vec::new();
@@ -202,7 +258,8 @@ pub fn run(args: EvalArgs) -> anyhow::Result<ExitCode> {
                     &weights,
                     &cfg,
                     t.radius.unwrap_or(cfg.env.robot_radius),
-                    args.transfer,
+                    transfer,
+                    args.margin,
                 )?;
                 owned.push(p);
                 mus.push(mu);
@@ -263,7 +320,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<ExitCode> {
             Rows::Robots(eval_out::gate_rows(
                 robot_results(&tasks, &results, &geometry),
                 &mus,
-                args.transfer == Transfer::Dvst,
+                transfer.name(),
             ))
         }
         Scenario::Training | Scenario::Dynamic => Rows::Rooms(room_summaries(&tasks, &results)),

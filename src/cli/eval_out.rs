@@ -16,7 +16,7 @@ pub struct GateRow {
     pub robot: RobotResult,
     /// DVST scale factor μ (1 without DVST).
     pub mu: f64,
-    /// `dvst` or `none`.
+    /// `dvst`, `none` or `radius` (the robot's radius as the policy's input).
     pub transfer: &'static str,
 }
 
@@ -30,13 +30,9 @@ pub enum Rows {
     Robots(Vec<GateRow>),
 }
 
-/// Gate rows with each robot's μ.
-pub fn gate_rows(robots: Vec<RobotResult>, mus: &[f64], dvst: bool) -> Vec<GateRow> {
-    robots
-        .into_iter()
-        .zip(mus)
-        .map(|(robot, &mu)| GateRow { robot, mu, transfer: if dvst { "dvst" } else { "none" } })
-        .collect()
+/// Gate rows with each robot's μ and how it was driven (`transfer`).
+pub fn gate_rows(robots: Vec<RobotResult>, mus: &[f64], transfer: &'static str) -> Vec<GateRow> {
+    robots.into_iter().zip(mus).map(|(robot, &mu)| GateRow { robot, mu, transfer }).collect()
 }
 
 /// Per task, the index of its group (room, and robot radius when given) in order of first
@@ -263,7 +259,7 @@ mod tests {
             score: 0.7,
             route: GateRoute::Left,
         };
-        let rows = Rows::Robots(gate_rows(vec![robot], &[1.75], true));
+        let rows = Rows::Robots(gate_rows(vec![robot], &[1.75], "dvst"));
         let v = serde_json::to_value(&rows).unwrap();
         let o = &v[0];
         for k in ["radius", "outcome", "path_length_m", "time_s", "route", "mu"] {

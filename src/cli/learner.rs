@@ -30,14 +30,35 @@ pub struct LearnerArgs {
     /// saved). Without `--config`, the run directory's `config.toml` is used.
     #[arg(long)]
     pub resume: bool,
+    /// `--resume` when `--out` holds a complete checkpoint, else a fresh start: one command
+    /// for a supervisor that restarts the learner after a crash (Kubernetes, systemd).
+    #[arg(long, conflicts_with = "resume")]
+    pub resume_if_present: bool,
     /// Serve Prometheus metrics over HTTP at this address (`GET /metrics`), e.g.
     /// `127.0.0.1:9100`; port 0 picks a free port. The address bound is logged and written to
     /// `OUT/metrics.addr`. `OUT/metrics.csv` is written with or without it.
     #[arg(long, value_name = "ADDR")]
     pub metrics_addr: Option<String>,
+    /// Where the networks train: `cpu`, or `cuda` / `cuda:N` for an NVIDIA GPU (a build with
+    /// `--features cuda`). Actors stay on the CPU.
+    #[arg(long, default_value = "cpu")]
+    pub device: String,
 }
 
-pub fn run(args: LearnerArgs) -> anyhow::Result<ExitCode> {
+pub fn run(mut args: LearnerArgs) -> anyhow::Result<ExitCode> {
+    let device = dvnav_learner::device::parse(&args.device)?;
+    if args.resume_if_present {
+        match dvnav_learner::checkpoint::latest(&args.out)? {
+            Some(ckpt) => {
+                tracing::info!(checkpoint = %ckpt.display(), "--resume-if-present: resuming");
+                args.resume = true;
+            }
+            None => tracing::info!(
+                out = %args.out.display(),
+                "--resume-if-present: no complete checkpoint yet; starting fresh"
+            ),
+        }
+    }
     let run_config = args.out.join("config.toml");
     let mut cfg = if args.resume && args.config.is_none() && run_config.exists() {
         super::load_config(Some(&run_config))?
@@ -95,6 +116,7 @@ pub fn run(args: LearnerArgs) -> anyhow::Result<ExitCode> {
                 run_id: None,
                 resume: args.resume,
                 metrics_listener,
+                device,
             },
             super::shutdown_signal(),
         )

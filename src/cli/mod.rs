@@ -8,6 +8,7 @@ mod inspect;
 mod learner;
 mod plot;
 mod rooms;
+mod serve;
 mod train;
 mod transfer;
 
@@ -50,6 +51,9 @@ enum Command {
     /// DVST: the dimension-scaled robot and its scale μ for a varied robot (a footprint file),
     /// as text, JSON, or a figure.
     Transfer(transfer::TransferArgs),
+    /// DVST controller service (gRPC): a robot sends its scan, goal and velocity each control
+    /// cycle and gets (v, ω) back; its footprint can change at run time.
+    Serve(serve::ServeArgs),
 }
 
 /// Sets up logging to stderr.
@@ -81,6 +85,7 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Bench(a) => bench::run(a),
         Command::Rooms(a) => rooms::run(a),
         Command::Transfer(a) => transfer::run(a),
+        Command::Serve(a) => serve::run(a),
     }
 }
 

@@ -22,9 +22,11 @@ enum PlotCommand {
     /// The selected episodes' paths over their rooms (one panel per room), coloured by
     /// outcome: green success, red collision, orange timeout.
     Trajectories(TrajectoriesArgs),
-    /// Learning curves of one or more runs (seeds): per room, the training success rate over
-    /// the curriculum window (from each run's `metrics.csv`) against environment steps, mean ±
-    /// std over the runs.
+    /// Learning curves of one or more runs (seeds), mean ± std over the runs against
+    /// environment steps, one panel per room: the paper's score S of the deterministic policy
+    /// on each room's evaluation route (`eval.csv`, written every `learner.eval_every_updates`),
+    /// or with `--metric success` the training success rate over the curriculum window
+    /// (`metrics.csv`).
     Curves(CurvesArgs),
 }
 
@@ -40,6 +42,51 @@ pub struct CurvesArgs {
     /// Points along the step axis.
     #[arg(long, default_value_t = 100)]
     pub points: usize,
+    /// What to draw.
+    #[arg(long, value_enum, default_value_t = CurveMetric::Score)]
+    pub metric: CurveMetric,
+}
+
+/// `dvnav plot curves --metric`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum CurveMetric {
+    /// Score S on each room's evaluation route (`eval.csv`), in [−1, 1].
+    Score,
+    /// Training success rate per stage over the curriculum window (`metrics.csv`).
+    Success,
+}
+
+/// Per room, the `(env_steps, route score)` rows of a run's `eval.csv`.
+fn score_series(run: &Path) -> anyhow::Result<BTreeMap<u32, Vec<(f64, f64)>>> {
+    let path = run.join("eval.csv");
+    let text = std::fs::read_to_string(&path).map_err(|e| {
+        anyhow::anyhow!(
+            "cannot read {}: {e} (runs from before evaluation during training have none: use --metric success)",
+            path.display()
+        )
+    })?;
+    let rooms = dvnav_common::config::Config::default().curriculum.rooms;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or("").split(',').collect();
+    let col = |name: &str| {
+        header
+            .iter()
+            .position(|h| *h == name)
+            .ok_or_else(|| anyhow::anyhow!("{}: no `{name}` column", path.display()))
+    };
+    let (steps, room, score) = (col("env_steps")?, col("room")?, col("score")?);
+    let mut out: BTreeMap<u32, Vec<(f64, f64)>> = BTreeMap::new();
+    for line in lines {
+        let cells: Vec<&str> = line.split(',').collect();
+        if cells.len() != header.len() {
+            continue; // a torn last line
+        }
+        let Some(k) = rooms.iter().position(|r| r == cells[room]) else { continue };
+        if let (Ok(x), Ok(v)) = (cells[steps].parse::<f64>(), cells[score].parse::<f64>()) {
+            out.entry(k as u32).or_default().push((x, v));
+        }
+    }
+    Ok(out)
 }
 
 /// `dvnav plot trajectories`.
@@ -110,12 +157,23 @@ fn curves(args: CurvesArgs) -> anyhow::Result<ExitCode> {
     let mut per_stage: BTreeMap<u32, Vec<Vec<(f64, f64)>>> = BTreeMap::new();
     let mut x_max: f64 = 0.0;
     for run in &args.runs {
-        for (k, series) in success_series(run)? {
+        let series = match args.metric {
+            CurveMetric::Score => score_series(run)?,
+            CurveMetric::Success => success_series(run)?,
+        };
+        for (k, series) in series {
             x_max = series.iter().fold(x_max, |m, (x, _)| m.max(*x));
             per_stage.entry(k).or_default().push(series);
         }
     }
-    anyhow::ensure!(!per_stage.is_empty(), "no success rates in the runs' metrics.csv yet");
+    anyhow::ensure!(
+        !per_stage.is_empty(),
+        "no rows in the runs' {} yet",
+        match args.metric {
+            CurveMetric::Score => "eval.csv",
+            CurveMetric::Success => "metrics.csv",
+        }
+    );
     let n = args.points.max(2);
     let grid: Vec<f64> = (0..n).map(|i| x_max * i as f64 / (n - 1) as f64).collect();
     let rooms = dvnav_common::config::Config::default().curriculum.rooms;
@@ -132,7 +190,14 @@ fn curves(args: CurvesArgs) -> anyhow::Result<ExitCode> {
             }],
         })
         .collect();
-    let axes = Axes { x_max, y_min: 0.0, y_max: 1.0, y_label: "success rate".into() };
+    let axes = match args.metric {
+        CurveMetric::Score => {
+            Axes { x_max, y_min: -1.0, y_max: 1.0, y_label: "route score S".into() }
+        }
+        CurveMetric::Success => {
+            Axes { x_max, y_min: 0.0, y_max: 1.0, y_label: "success rate".into() }
+        }
+    };
     let canvas = render(&panels, &axes, 480, 360)?;
     std::fs::write(&args.out, canvas.encode_png()?)
         .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", args.out.display()))?;
@@ -303,8 +368,29 @@ mod curve_tests {
         )
         .unwrap();
         let out = dir.path().join("c.png");
-        curves(CurvesArgs { runs: vec![dir.path().to_path_buf()], out: out.clone(), points: 10 })
-            .unwrap();
+        let args = |metric| CurvesArgs {
+            runs: vec![dir.path().to_path_buf()],
+            out: out.clone(),
+            points: 10,
+            metric,
+        };
+        curves(args(CurveMetric::Success)).unwrap();
         assert!(std::fs::read(&out).unwrap().starts_with(b"\x89PNG"));
+        // No eval.csv: the score curves say what is missing and what to do.
+        let err = curves(args(CurveMetric::Score)).unwrap_err().to_string();
+        assert!(err.contains("eval.csv") && err.contains("--metric success"), "{err}");
+    }
+
+    #[test]
+    fn score_series_reads_the_route_score_per_room() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(
+            dir.path().join("eval.csv"),
+            "updates,env_steps,room,score\n2000,9000,env0,-1.0\n2000,9000,env3,0.25\n4000,18000,env0,0.5\n4000,18",
+        )
+        .unwrap();
+        let s = score_series(dir.path()).unwrap();
+        assert_eq!(s[&0], vec![(9000.0, -1.0), (18000.0, 0.5)]);
+        assert_eq!(s[&3], vec![(9000.0, 0.25)]);
     }
 }

@@ -27,6 +27,13 @@ pub struct Dvst<P> {
 impl<P: NavPolicy> Dvst<P> {
     /// Wraps `meta` for `robot`; the robot's missing velocity bounds are the meta policy's.
     pub fn new(meta: P, robot: VariedRobot) -> anyhow::Result<Self> {
+        anyhow::ensure!(
+            meta.obs_dim() == obs_dim(meta.beams()),
+            "DVST transfers the standard observation of {} values; this policy takes {} (a \
+             policy with the robot radius as an input is driven with each robot's own radius)",
+            obs_dim(meta.beams()),
+            meta.obs_dim()
+        );
         robot.validate()?;
         let (v_max, omega_max) = meta.velocity_bounds();
         let bounds = robot.velocity_bounds(VelocityBounds { v_max, omega_max });
@@ -75,6 +82,20 @@ impl<P: NavPolicy> Dvst<P> {
         footprint.validate()?;
         self.robot.footprint = footprint;
         self.mu = self.robot.mu();
+        Ok(self.mu)
+    }
+
+    /// A new varied robot at run time, whole: footprint, meta robot, margin and bounds, as if
+    /// DVST had been built for `robot` (the robot's missing bounds are the meta policy's).
+    /// Recomputes μ and returns it. An invalid robot changes nothing.
+    pub fn set_robot(&mut self, robot: VariedRobot) -> anyhow::Result<f64> {
+        robot.validate()?;
+        let (v_max, omega_max) = self.meta.velocity_bounds();
+        let bounds = robot.velocity_bounds(VelocityBounds { v_max, omega_max });
+        bounds.validate()?;
+        self.mu = robot.mu();
+        self.robot = robot;
+        self.bounds = bounds;
         Ok(self.mu)
     }
 }
@@ -157,9 +178,22 @@ mod tests {
 
         // An invalid footprint is refused and changes nothing.
         let bad = Footprint { name: String::new(), parts: vec![] };
-        assert!(dvst.set_footprint(bad).is_err());
+        assert!(dvst.set_footprint(bad.clone()).is_err());
         assert!((dvst.mu() - 2.5).abs() < 1e-12);
         assert!(dvst.act(&obs[..6]).is_err(), "wrong observation length");
+
+        // A whole new robot: its own margin and bounds replace the old ones; a bound it leaves
+        // out is the meta policy's again (v_max was 0.6).
+        let mut robot = VariedRobot::new(Footprint::circle(0.3));
+        (robot.margin, robot.omega_max) = (0.02, Some(0.5));
+        let mu = dvst.set_robot(robot.clone()).unwrap();
+        assert!((mu - 1.6).abs() < 1e-12 && dvst.mu() == mu, "{mu}");
+        assert_eq!(dvst.robot(), &robot);
+        assert_eq!(dvst.velocity_bounds(), (0.5, 0.5));
+        let invalid = VariedRobot { margin: -1.0, ..robot.clone() };
+        assert!(dvst.set_robot(invalid).is_err());
+        assert!(dvst.set_robot(VariedRobot::new(bad)).is_err());
+        assert_eq!((dvst.robot(), dvst.velocity_bounds()), (&robot, (0.5, 0.5)), "unchanged");
     }
 
     #[test]

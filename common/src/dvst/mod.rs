@@ -10,6 +10,8 @@
 //!   arc scaled by μ, shortened to the varied robot's bounds with its curvature kept).
 //! - [`agent`]: [`Dvst`], any [`crate::policy::NavPolicy`] wrapped for the varied robot, itself
 //!   a `NavPolicy`; the footprint can change at run time.
+//! - [`controller`]: [`DvstController`], a meta agent driving one robot for many callers
+//!   (`dvnav serve`): checked requests, atomic footprint changes.
 //!
 //! ```
 //! use dvnav_common::dvst::{VariedRobot, transfer_policy, VelocityBounds};
@@ -27,11 +29,13 @@
 //! ```
 
 pub mod agent;
+pub mod controller;
 pub mod footprint_file;
 pub mod scale;
 pub mod transfer;
 
 pub use agent::Dvst;
+pub use controller::DvstController;
 pub use footprint_file::VariedRobot;
 pub use scale::{MetaRobot, Reach, covering_scale};
 pub use transfer::{VelocityBounds, transfer_observation, transfer_policy};

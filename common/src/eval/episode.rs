@@ -143,6 +143,12 @@ pub fn run_episode(env: &mut NavEnv, policy: &mut dyn NavPolicy) -> anyhow::Resu
         policy.beams(),
         env.lidar().beams()
     );
+    anyhow::ensure!(
+        policy.obs_dim() == env.obs_dim(),
+        "the policy takes observations of {} values, the environment writes {}",
+        policy.obs_dim(),
+        env.obs_dim()
+    );
     let mut obs = vec![0.0f32; env.obs_dim()];
     let mut rec = Recorder::begin(env, false);
     while env.done().is_none() {

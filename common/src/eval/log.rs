@@ -57,7 +57,7 @@ impl EvalLogger {
         self.logger.begin_episode(&EpisodeStart {
             episode_id: id,
             room: env.room().spec(),
-            robot_radius: task.robot_radius(cfg),
+            robot_radius: env.robot_radius(),
             goal: r.goal,
             lidar: &cfg.lidar,
             dt: cfg.dt,

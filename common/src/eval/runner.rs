@@ -132,6 +132,13 @@ pub fn run_jobs(
             p.beams(),
             j.env.lidar().beams()
         );
+        anyhow::ensure!(
+            p.obs_dim() == j.env.obs_dim(),
+            "job {i}: the policy takes observations of {} values, the environment writes {} \
+             (env.radius_input differs)",
+            p.obs_dim(),
+            j.env.obs_dim()
+        );
         anyhow::ensure!(j.plan.legs() > 0, "job {i}: a route needs at least one goal");
     }
     let mut results: Vec<Vec<EpisodeResult>> = (0..jobs.len()).map(|_| Vec::new()).collect();

@@ -202,6 +202,61 @@ mod tests {
         assert!(parse_radii("0.1:1000:0.1").is_err());
     }
 
+    /// The PID controller that also records the radius at the end of each observation.
+    struct RadiusProbe {
+        pid: PidPolicy,
+        seen: Vec<f32>,
+    }
+    impl NavPolicy for RadiusProbe {
+        fn beams(&self) -> usize {
+            self.pid.beams()
+        }
+        fn obs_dim(&self) -> usize {
+            self.pid.obs_dim()
+        }
+        fn act(&mut self, obs: &[f32]) -> anyhow::Result<(f64, f64)> {
+            self.seen.push(obs[obs.len() - 1]);
+            self.pid.act(obs)
+        }
+        fn velocity_bounds(&self) -> (f64, f64) {
+            self.pid.velocity_bounds()
+        }
+    }
+
+    #[test]
+    fn gate_robots_of_a_radius_input_policy_each_see_their_own_radius() {
+        let mut cfg = Config::default();
+        cfg.env.radius_input = true;
+        cfg.env.max_steps = 30;
+        let room = Room::builtin("gate").unwrap();
+        let route = room.spec().route("gate").unwrap().clone();
+        let radii = [0.2, 0.45, 0.7];
+        let tasks = robot_tasks(&room, &route, &radii, 0);
+        let pid = PidPolicy { warmup: cfg.warmup.clone(), env: cfg.env.clone() };
+        let mut probes: Vec<RadiusProbe> =
+            radii.iter().map(|_| RadiusProbe { pid: pid.clone(), seen: Vec::new() }).collect();
+        let mut policies: Vec<&mut dyn NavPolicy> =
+            probes.iter_mut().map(|p| p as &mut dyn NavPolicy).collect();
+        run_tasks(&tasks, &cfg.env, &mut policies, RunOptions::default(), &mut |_, _| Ok(()))
+            .unwrap();
+        for (p, &r) in probes.iter().zip(&radii) {
+            assert!(!p.seen.is_empty());
+            assert!(p.seen.iter().all(|&x| x == r as f32), "robot {r}: {:?}", &p.seen[..3]);
+        }
+        // A policy of the standard layout is refused before anything runs.
+        let mut plain = pid.clone();
+        plain.env.radius_input = false;
+        let e = run_tasks(
+            &tasks[..1],
+            &cfg.env,
+            &mut [&mut plain],
+            RunOptions::default(),
+            &mut |_, _| Ok(()),
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("545"), "{e}");
+    }
+
     #[test]
     fn training_tasks_put_each_rooms_route_first_and_seed_episodes_apart() {
         let rooms: Vec<_> = ["env0", "env1"].iter().map(|n| Room::builtin(n).unwrap()).collect();

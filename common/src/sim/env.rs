@@ -25,7 +25,9 @@ const SAMPLE_TRIES: usize = 10_000;
 /// One environment: a room, a robot (its footprint, unicycle kinematics, the LiDAR at the axle
 /// centre), a goal, and the episode's bookkeeping. The robot is the circular meta robot of
 /// `EnvConfig::robot_radius` unless `EnvConfig::footprint` or [`NavEnv::with_footprint`] gives
-/// another footprint.
+/// another footprint. With `EnvConfig::radius_range` (and no other footprint), each
+/// [`NavEnv::reset`] draws the circle's radius uniformly from that range, and
+/// [`NavEnv::reset_to`] (evaluation routes) drives `robot_radius`.
 ///
 /// Starts and goals come from the environment's own generator, seeded at construction, so an
 /// environment replays the same episodes for the same seed and actions. LiDAR noise (when
@@ -41,6 +43,12 @@ pub struct NavEnv {
     body: Body,
     /// [`Footprint::sweep_radius`]: how far (m) a footprint point moves per radian turned.
     sweep_radius: f64,
+    /// The robot's radius (m): the circle's, or the footprint's bounding radius; the
+    /// observation's radius input.
+    radius: f64,
+    /// `EnvConfig::radius_range` for the configured circular robot; `None` for a given
+    /// footprint.
+    radius_range: Option<[f64; 2]>,
     /// Timed obstacles of the room present now (a prefix of the room's order).
     active: usize,
     /// Set by [`NavEnv::set_room`]; swapped in at the next reset.
@@ -70,7 +78,8 @@ impl NavEnv {
     pub fn new(room: Arc<Room>, cfg: &EnvConfig, seed: u64) -> NavEnv {
         let footprint =
             cfg.footprint.clone().unwrap_or_else(|| Footprint::circle(cfg.robot_radius));
-        NavEnv::with_footprint(room, cfg, seed, footprint)
+        let range = if cfg.footprint.is_none() { cfg.radius_range } else { None };
+        NavEnv::build(room, cfg, seed, footprint, range)
     }
 
     /// An environment for a robot of `footprint` (robot frame, LiDAR at the origin), whatever
@@ -85,6 +94,16 @@ impl NavEnv {
         seed: u64,
         footprint: Footprint,
     ) -> NavEnv {
+        NavEnv::build(room, cfg, seed, footprint, None)
+    }
+
+    fn build(
+        room: Arc<Room>,
+        cfg: &EnvConfig,
+        seed: u64,
+        footprint: Footprint,
+        radius_range: Option<[f64; 2]>,
+    ) -> NavEnv {
         if let Err(e) = footprint.validate() {
             panic!("invalid footprint: {e:#}");
         }
@@ -98,6 +117,8 @@ impl NavEnv {
             room,
             body: Body::new(&footprint),
             sweep_radius: footprint.sweep_radius(),
+            radius: footprint.bounding_radius(),
+            radius_range,
             footprint,
             active: 0,
             next_room: None,
@@ -122,12 +143,17 @@ impl NavEnv {
     /// `spawn_clearance` to every wall and obstacle (timed obstacles included), at least
     /// `min_start_goal_distance` apart. When the room has spawn regions, starts come from the
     /// regions for starts and goals from those for goals (a region is picked in proportion to
-    /// its area). A room set with [`NavEnv::set_room`] takes effect here.
+    /// its area). A room set with [`NavEnv::set_room`] takes effect here. With a radius range
+    /// the robot's radius is drawn first, from the same generator.
     ///
     /// # Panics
     /// If no such pair is found after many tries (a room without free space for the robot).
     pub fn reset(&mut self) {
         self.take_next_room();
+        if let Some([lo, hi]) = self.radius_range {
+            let r = if lo < hi { self.rng.random_range(lo..=hi) } else { lo };
+            self.set_circle(r);
+        }
         let need = self.footprint.bounding_radius() + self.cfg.spawn_clearance;
         for _ in 0..100 {
             let start = self.sample_free(need, true);
@@ -148,10 +174,22 @@ impl NavEnv {
     }
 
     /// Starts a new episode from `start` towards `goal` (evaluation routes). Neither is checked
-    /// for clearance; a start in contact ends the first step with a collision.
+    /// for clearance; a start in contact ends the first step with a collision. With a radius
+    /// range the robot is the circle of `robot_radius`, so every route drives the same robot.
     pub fn reset_to(&mut self, start: Pose2, goal: [f64; 2]) {
         self.take_next_room();
+        if self.radius_range.is_some() && self.radius != self.cfg.robot_radius {
+            self.set_circle(self.cfg.robot_radius);
+        }
         self.begin(start, goal);
+    }
+
+    /// Makes the robot a circle of radius `r` (m) about the axle.
+    fn set_circle(&mut self, r: f64) {
+        self.footprint = Footprint::circle(r);
+        self.body = Body::new(&self.footprint);
+        self.sweep_radius = self.footprint.sweep_radius();
+        self.radius = r;
     }
 
     /// Runs the next episodes in `room` (from the next reset on).
@@ -290,14 +328,15 @@ impl NavEnv {
         StepOutcome { reward, done }
     }
 
-    /// Length of [`NavEnv::write_obs`]'s output: beams + 4.
+    /// Length of [`NavEnv::write_obs`]'s output: beams + 4, one more with the radius input.
     pub fn obs_dim(&self) -> usize {
-        obs::obs_dim(self.lidar.beams())
+        self.cfg.obs_layout().dim()
     }
 
     /// Writes the observation at the current pose in the layout of [`crate::obs`]: the scan
     /// (m), goal distance (m), goal bearing in the robot frame (rad, (−π, π], left positive),
-    /// and the last commanded v (m/s) and ω (rad/s), both 0 after a reset.
+    /// and the last commanded v (m/s) and ω (rad/s), both 0 after a reset; with
+    /// `EnvConfig::radius_input`, then the robot's radius ([`NavEnv::robot_radius`]).
     ///
     /// # Panics
     /// If `out` is not [`NavEnv::obs_dim`] long.
@@ -310,6 +349,16 @@ impl NavEnv {
         extra[obs::GOAL_ANGLE] = self.goal_angle() as f32;
         extra[obs::LINEAR_VELOCITY] = self.v as f32;
         extra[obs::ANGULAR_VELOCITY] = self.omega as f32;
+        if self.cfg.radius_input {
+            extra[obs::RADIUS] = self.radius as f32;
+        }
+    }
+
+    /// The robot's radius (m): the circle's (drawn per episode with a radius range), or a
+    /// footprint's bounding radius (the smallest circle about the axle that covers it, which
+    /// is how a policy with the radius input sees a robot that is not a circle).
+    pub fn robot_radius(&self) -> f64 {
+        self.radius
     }
 
     /// Bearing of the goal in the robot frame (rad, (−π, π], left positive).
@@ -568,6 +617,93 @@ mod tests {
         let theta = env.lidar().beam_angles()[270] + yaw;
         let expect = (-4.0 - x) / theta.cos();
         assert!((o[270] as f64 - expect).abs() < 1e-3, "{} vs {expect}", o[270]);
+    }
+
+    #[test]
+    fn the_radius_input_adds_the_episodes_radius_after_omega() {
+        let standard = NavEnv::new(empty_room(8.0), &cfg(), 1);
+        assert_eq!(standard.obs_dim(), 544, "the meta agent's layout is unchanged");
+        let cfg = EnvConfig { radius_input: true, robot_radius: 0.3, ..cfg() };
+        let mut env = NavEnv::new(empty_room(8.0), &cfg, 1);
+        assert_eq!(env.obs_dim(), 545);
+        let mut o = vec![0.0; 545];
+        env.write_obs(&mut o);
+        assert_eq!(o[540 + obs::RADIUS], 0.3);
+        // The standard part is what an environment without the radius input writes.
+        let plain_cfg = EnvConfig { radius_input: false, ..cfg.clone() };
+        let mut plain = NavEnv::new(empty_room(8.0), &plain_cfg, 1);
+        let mut p = vec![0.0; 544];
+        for _ in 0..5 {
+            env.step(0.4, 0.3);
+            plain.step(0.4, 0.3);
+            env.write_obs(&mut o);
+            plain.write_obs(&mut p);
+            assert_eq!(o[..544], p[..]);
+            assert_eq!(o[544], 0.3);
+        }
+        // A given footprint's radius input is its bounding radius.
+        let fp = Footprint::rectangle(0.6, 0.8);
+        let env = NavEnv::with_footprint(empty_room(8.0), &cfg, 1, fp);
+        env.write_obs(&mut o);
+        assert!((o[544] as f64 - 0.5).abs() < 1e-6, "{}", o[544]);
+    }
+
+    #[test]
+    fn radii_are_drawn_per_episode_within_the_range_and_replay_for_a_seed() {
+        let cfg = EnvConfig { radius_input: true, radius_range: Some([0.2, 0.5]), ..cfg() };
+        let room = Room::builtin("sac_ri").unwrap();
+        let radii = |seed: u64| -> Vec<f64> {
+            let mut env = NavEnv::new(room.clone(), &cfg, seed);
+            let mut o = vec![0.0; env.obs_dim()];
+            (0..200)
+                .map(|_| {
+                    env.reset();
+                    let r = env.robot_radius();
+                    env.write_obs(&mut o);
+                    assert_eq!(o[540 + obs::RADIUS], r as f32, "the observation holds it");
+                    assert_eq!(env.footprint().as_circle(), Some(r), "the robot is that circle");
+                    // Spawn clearance follows the drawn radius.
+                    let need = r + cfg.spawn_clearance;
+                    assert!(!room.circle_collides_any_time(env.start().position(), need));
+                    assert!(!room.circle_collides_any_time(env.goal(), need));
+                    r
+                })
+                .collect()
+        };
+        let a = radii(4);
+        assert!(a.iter().all(|r| (0.2..=0.5).contains(r)), "{a:?}");
+        let (lo, hi) = a.iter().fold((1.0f64, 0.0f64), |(l, h), &r| (l.min(r), h.max(r)));
+        assert!(lo < 0.25 && hi > 0.45, "spread over the range: {lo} .. {hi}");
+        assert_eq!(a, radii(4), "the same seed draws the same radii");
+        assert_ne!(a, radii(5));
+        // The robot collides as the drawn circle: driving into a wall, it stops r from it.
+        let mut env = NavEnv::new(empty_room(8.0), &cfg, 9);
+        let r = env.robot_radius();
+        env.reset_to(Pose2::new(3.0, 0.0, 0.0), [-3.0, 0.0]);
+        assert_eq!(env.robot_radius(), 0.2, "a route drives robot_radius");
+        env.reset();
+        assert_ne!(env.robot_radius(), r, "the next random episode draws again");
+        let r = env.robot_radius();
+        env.begin(Pose2::new(0.0, 0.0, 0.0), [-3.0, 0.0]); // as reset left the robot
+        while env.done().is_none() {
+            env.step(0.5, 0.0);
+        }
+        assert_eq!(env.done(), Some(Outcome::Collision));
+        assert!((env.pose().x - (4.0 - r)).abs() < 0.03, "{} vs r = {r}", env.pose().x);
+        // A given footprint is that robot in every episode; a one-value range draws nothing.
+        let mut fixed = NavEnv::with_footprint(room.clone(), &cfg, 4, Footprint::circle(0.35));
+        let one = EnvConfig { radius_range: Some([0.3, 0.3]), ..cfg.clone() };
+        let mut single = NavEnv::new(room.clone(), &one, 4);
+        let fixed_cfg = EnvConfig { radius_range: None, robot_radius: 0.3, ..one.clone() };
+        let mut none = NavEnv::new(room.clone(), &fixed_cfg, 4);
+        for _ in 0..20 {
+            fixed.reset();
+            single.reset();
+            none.reset();
+            assert_eq!(fixed.robot_radius(), 0.35);
+            assert_eq!(single.robot_radius(), 0.3);
+            assert_eq!((single.start(), single.goal()), (none.start(), none.goal()));
+        }
     }
 
     fn run_episode(env: &mut NavEnv, actions: &mut Pcg64) -> (Vec<u32>, Vec<u32>) {

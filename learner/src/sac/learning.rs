@@ -407,6 +407,52 @@ mod tests {
     }
 
     #[test]
+    fn radius_input_batches_pass_the_wire_and_the_replay_buffer_into_an_update() {
+        use crate::replay::{ObsCodec, ReplayBuffer};
+        use dvnav_common::core::TransitionBatch;
+        use dvnav_common::wire;
+        let cfg = dvnav_common::config::Config::from_toml_str(include_str!(
+            "../../../configs/sac_ri.toml"
+        ))
+        .unwrap();
+        let d = cfg.obs_dim();
+        assert_eq!(d, 545);
+        // Two episodes' worth of steps, each observation ending in its robot's radius.
+        let radii = [0.23f32, 0.47];
+        let obs = |k: usize, r: f32| -> Vec<f32> {
+            let mut o: Vec<f32> = (0..540).map(|i| 0.5 + ((i + k) % 17) as f32 * 0.5).collect();
+            o.extend([3.0 - 0.1 * k as f32, 0.2, 0.3, -0.1, r]);
+            o
+        };
+        let mut tb = TransitionBatch::with_capacity(d, 12);
+        for k in 0..12 {
+            let (r, end) = (radii[k / 6], k % 6 == 5);
+            tb.push(&obs(k, r), [0.2, -0.3], 0.1, &obs(k + 1, r), end, false, 1);
+        }
+        let tb = wire::batch_from_proto(wire::batch_to_proto(&tb, 0, 0), d).unwrap();
+        let mut replay = ReplayBuffer::new(ObsCodec::for_config(&cfg), 64);
+        replay.insert(&tb);
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(1);
+        let mut batch = Batch::default();
+        replay.sample_into(16, &mut rng, &mut batch);
+        assert_eq!((batch.size, batch.obs_dim), (16, 545));
+        for o in batch.obs.chunks_exact(d) {
+            assert!(radii.contains(&o[544]), "the radius is stored exactly: {}", o[544]);
+        }
+        let nets = SacNetworks::new(&cfg, 3, &Device::Cpu).unwrap();
+        let mut sac = SacLearner::new(nets, cfg.sac.clone(), Device::Cpu, 1).unwrap();
+        let before = sac.policy_safetensors().unwrap();
+        for _ in 0..2 {
+            let m = sac.update(&batch).unwrap();
+            assert!(m.critic_loss.is_finite() && m.actor_loss.is_finite());
+        }
+        assert_ne!(sac.policy_safetensors().unwrap(), before);
+        // A batch of the standard layout does not fit these networks.
+        let short = tiny_batch(&dvnav_common::config::Config::default());
+        assert!(sac.update(&short).is_err());
+    }
+
+    #[test]
     fn state_round_trips_into_a_fresh_learner() {
         let cfg = dvnav_common::config::Config::default();
         let batch = tiny_batch(&cfg);

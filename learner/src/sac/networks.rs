@@ -103,14 +103,14 @@ impl SacNetworks {
     /// Fresh navigation networks, deterministically initialised from `seed`; targets start as
     /// copies.
     pub fn new(cfg: &Config, seed: u64, dev: &Device) -> Result<Self> {
-        let beams = cfg.env.lidar.beams;
+        let layout = cfg.obs_layout();
         let n = &cfg.network;
         Self::build(
             dev,
             seed,
             cfg.sac.initial_alpha,
-            |vb| Actor::new(vb, n, beams),
-            |vb| Critic::new(vb, n, beams),
+            |vb| Actor::new(vb, n, layout),
+            |vb| Critic::new(vb, n, layout),
         )
     }
 }

@@ -1,0 +1,80 @@
+"""A robot's side of `dvnav serve`, as an example: Info, one Act, a footprint change, Act again,
+and two refusals (a NaN in the scan; a call without the token).
+
+    pip install grpcio grpcio-tools
+    python3 scripts/controller_client.py [--addr 127.0.0.1:50061] [--token-file token]
+
+The Python stubs are generated from proto/ into a temporary directory at start, so the script
+always speaks the protocol of this checkout.
+"""
+
+import argparse
+import pathlib
+import sys
+import tempfile
+
+import grpc
+from grpc_tools import protoc
+
+REPO = pathlib.Path(__file__).resolve().parent.parent
+PROTO = "dvnav/controller/v1/controller.proto"
+
+
+def stubs():
+    out = tempfile.mkdtemp(prefix="dvnav-controller-")
+    args = ["protoc", f"-I{REPO / 'proto/proto'}", f"--python_out={out}", f"--grpc_python_out={out}"]
+    if protoc.main(args + [PROTO]) != 0:
+        sys.exit(f"cannot compile {PROTO}")
+    sys.path.insert(0, out)
+    from dvnav.controller.v1 import controller_pb2, controller_pb2_grpc
+
+    return controller_pb2, controller_pb2_grpc
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--addr", default="127.0.0.1:50061")
+    p.add_argument("--token-file", help="the server's --token-file")
+    p.add_argument("--cargo", default=str(REPO / "footprints/circle-with-cargo.toml"),
+                   help="the footprint file sent with SetFootprint")
+    a = p.parse_args()
+    pb, rpc = stubs()
+
+    ctl = rpc.ControllerStub(grpc.insecure_channel(a.addr))
+    token = open(a.token_file).read().strip() if a.token_file else None
+    auth = [("authorization", "Bearer " + token)] if token else []
+
+    info = ctl.Info(pb.InfoRequest(), metadata=auth)
+    print(f"{info.scan_beams} beams over {info.scan_fov_deg:.0f} deg, every {info.control_period_s} s;"
+          f" mu {info.mu:.2f}, {info.scaled_robot}; {info.model} {info.model_version}")
+
+    scan = [2.5] * info.scan_beams  # the LiDAR's ranges (m), in the meta agent's beam layout
+    req = pb.ActRequest(scan=scan, goal_distance=3.0, goal_angle=0.6, v=0.2, omega=0.0,
+                        robot_id="cart-1")
+    cmd = ctl.Act(req, metadata=auth)
+    print(f"v {cmd.v:.3f} m/s, omega {cmd.omega:.3f} rad/s"
+          f" (mu {cmd.mu:.2f}, footprint {cmd.footprint_version})")
+
+    # It picks up cargo.
+    toml = open(a.cargo).read()
+    new = ctl.SetFootprint(pb.SetFootprintRequest(footprint_toml=toml, robot_id="cart-1"),
+                           metadata=auth)
+    print(f"mu {new.mu:.4f}, {new.scaled_robot}, footprint {new.footprint_version}")
+    cmd = ctl.Act(req, metadata=auth)
+    print(f"v {cmd.v:.3f} m/s, omega {cmd.omega:.3f} rad/s"
+          f" (mu {cmd.mu:.2f}, footprint {cmd.footprint_version})")
+
+    scan[17] = float("nan")
+    try:
+        ctl.Act(pb.ActRequest(scan=scan, goal_distance=3.0), metadata=auth)
+    except grpc.RpcError as e:
+        print(e.code(), e.details())
+    if token:
+        try:
+            ctl.Info(pb.InfoRequest())
+        except grpc.RpcError as e:
+            print(e.code(), e.details())
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,263 @@
+//! Fault test: an actor process of `dvnav train` is killed with SIGKILL mid-run. The learner
+//! notices within seconds and names it in its log, the supervisor restarts it (as
+//! `actor-0-r1`, a new actor id), the run reaches its budget and ends cleanly, and the books
+//! balance: every transition the learner counted is in the replay buffer once, every surviving
+//! process had all it sent received, and the killed process's accepted batches stay counted.
+//!
+//! What cannot be asserted: how many transitions the killed process had produced but not yet
+//! had acknowledged (its summary dies with it); those are lost with it by design.
+//!
+//! Then the learner alone as a supervisor (Kubernetes, systemd) runs it: `dvnav learner
+//! --resume-if-present` starts fresh on an empty directory, resumes on the run's checkpoints,
+//! and answers its health probes.
+
+use dvnav_proto::StatusRequest;
+use dvnav_proto::learner_client::LearnerClient;
+use serde_json::Value;
+use std::io::{Read, Write};
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// The smoke test's config with a larger budget, so the kill and the restart fall well inside
+/// the run, and no episode logs.
+const CONFIG: &str = r#"
+[run]
+steps = 4000
+seed = 11
+
+[sac]
+batch_size = 32
+learning_starts = 500
+updates_per_env_step = 0.1
+
+[learner]
+publish_every_updates = 10
+checkpoint_every_updates = 100
+max_steps_ahead = 1000
+
+[actor]
+envs = 2
+batch_transitions = 64
+
+[warmup]
+pid_episodes = 10
+
+[logging]
+every_nth_episode = 0
+"#;
+
+fn read_json(path: &Path) -> Option<Value> {
+    serde_json::from_slice(&std::fs::read(path).ok()?).ok()
+}
+
+fn wait_for<T>(what: &str, limit: Duration, mut f: impl FnMut() -> Option<T>) -> T {
+    let deadline = Instant::now() + limit;
+    loop {
+        if let Some(v) = f() {
+            return v;
+        }
+        assert!(Instant::now() < deadline, "{what}: not within {limit:?}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// One HTTP/1.1 GET; returns the status line.
+fn http_get(addr: &str, path: &str) -> String {
+    let mut sock = std::net::TcpStream::connect(addr).unwrap();
+    write!(sock, "GET {path} HTTP/1.1\r\nHost: x\r\n\r\n").unwrap();
+    let mut reply = String::new();
+    sock.read_to_string(&mut reply).unwrap();
+    reply.lines().next().unwrap_or("").to_string()
+}
+
+#[test]
+fn a_killed_actor_is_restarted_and_nothing_is_counted_twice() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("faults.toml");
+    std::fs::write(&config, CONFIG).unwrap();
+    let out = dir.path().join("run");
+    let started = Instant::now();
+    let mut train = Command::new(env!("CARGO_BIN_EXE_dvnav"))
+        .args(["train", "--actors", "2", "--progress-every-s", "5", "--metrics-addr"])
+        .arg("127.0.0.1:0")
+        .arg("--config")
+        .arg(&config)
+        .arg("--out")
+        .arg(&out)
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(dir.path().join("train.log")).unwrap())
+        .spawn()
+        .unwrap();
+    let log = |name: &str| std::fs::read_to_string(out.join("logs").join(name)).unwrap_or_default();
+    let train_log = || std::fs::read_to_string(dir.path().join("train.log")).unwrap_or_default();
+
+    let pids = wait_for("pids.json", Duration::from_secs(60), || read_json(&out.join("pids.json")));
+    let victim = &pids["actors"][0];
+    assert_eq!(victim["process"], "actor-0", "{pids}");
+    let victim_pid = victim["pid"].as_i64().unwrap() as i32;
+    let addr = std::fs::read_to_string(out.join("learner.addr")).unwrap();
+    let metrics = std::fs::read_to_string(out.join("metrics.addr")).unwrap();
+
+    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+    let mut client =
+        rt.block_on(LearnerClient::connect(format!("http://{}", addr.trim()))).unwrap();
+    let mut status = || rt.block_on(client.status(StatusRequest {})).unwrap().into_inner();
+    let received_by = |s: &dvnav_proto::StatusReply, name: &str| {
+        s.actors.iter().find(|a| a.actor_name == name).map_or(0, |a| a.transitions_received)
+    };
+    // Mid-run: training has begun, the victim has had batches accepted, the budget is far.
+    let before = wait_for("updates and actor-0's first batches", Duration::from_secs(60), || {
+        let s = status();
+        (s.updates > 0 && received_by(&s, "actor-0") >= 128).then_some(s)
+    });
+    assert!(before.transitions_received < 3000, "killed too late to test a restart: {before:?}");
+    assert_eq!(http_get(metrics.trim(), "/readyz"), "HTTP/1.1 200 OK");
+    assert_eq!(http_get(metrics.trim(), "/healthz"), "HTTP/1.1 200 OK");
+
+    // SAFETY: kill(2) on a process id read from the run's pids.json, a child of our child.
+    assert_eq!(unsafe { libc::kill(victim_pid, libc::SIGKILL) }, 0);
+    let killed_at = Instant::now();
+    let at_kill = status();
+
+    // The learner names the lost actor within a few seconds.
+    let noticed = wait_for("the learner's log line about actor-0", Duration::from_secs(10), || {
+        log("learner.log")
+            .lines()
+            .any(|l| l.contains("ended abnormally") && l.contains("actor=actor-0 "))
+            .then(|| killed_at.elapsed())
+    });
+    // The restarted process delivers: the time from the kill to its first accepted batch.
+    let recovered = wait_for("actor-0-r1's first accepted batch", Duration::from_secs(60), || {
+        (received_by(&status(), "actor-0-r1") > 0).then(|| killed_at.elapsed())
+    });
+    eprintln!(
+        "faults: actor-0 killed at {:.1} s into the run (learner at {} steps); the learner \
+         logged it after {:.2} s; actor-0-r1's first batch was accepted {:.2} s after the kill",
+        (killed_at - started).as_secs_f64(),
+        at_kill.transitions_received,
+        noticed.as_secs_f64(),
+        recovered.as_secs_f64()
+    );
+    assert!(noticed < Duration::from_secs(5), "{noticed:?}");
+    let pids = read_json(&out.join("pids.json")).unwrap();
+    assert_eq!(pids["actors"][0]["process"], "actor-0-r1", "{pids}");
+    assert_eq!(pids["actors"][0]["restarts"], 1, "{pids}");
+
+    let deadline = Instant::now() + Duration::from_secs(120);
+    let exit = loop {
+        if let Some(st) = train.try_wait().unwrap() {
+            break st;
+        }
+        if Instant::now() > deadline {
+            let _ = train.kill();
+            panic!("dvnav train did not finish: {}", train_log());
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let train_log = train_log();
+    assert!(exit.success(), "dvnav train failed: {train_log}\nlearner:\n{}", log("learner.log"));
+    assert!(
+        train_log.contains("actor-0 (pid") && train_log.contains("SIGKILL"),
+        "the supervisor says which actor died and how: {train_log}"
+    );
+    assert!(train_log.contains("1 actor restart;"), "{train_log}");
+    assert!(!out.join("pids.json").exists(), "no stale process ids after the run");
+
+    let s = read_json(&out.join("run_summary.json")).unwrap();
+    let n = |v: &Value| v.as_u64().unwrap_or_else(|| panic!("not a count: {v}"));
+    assert_eq!(s["clean_shutdown"], true, "a restarted actor leaves the run clean: {s}");
+    assert_eq!(n(&s["actor_restarts"]), 1, "{s}");
+    assert_eq!(s["restarts"], serde_json::json!({ "actor-0": 1, "actor-1": 0 }), "{s}");
+    let failure = &s["actor_failures"][0];
+    assert_eq!(failure["process"], "actor-0");
+    assert_eq!(failure["pid"].as_i64(), Some(victim_pid as i64));
+    assert!(failure["exit_status"].as_str().unwrap().contains("SIGKILL"), "{failure}");
+    assert_eq!(failure["restarted_as"], "actor-0-r1");
+    assert!(failure["restart_delay_s"].as_f64().unwrap() >= 1.0, "the first backoff is 1 s");
+
+    let received = n(&s["transitions_received"]);
+    assert!(received >= 4000, "the budget was reached: {s}");
+    assert_eq!(n(&s["transitions_rejected"]), 0, "{s}");
+    // Every transition counted is in the replay buffer exactly once (it holds 10^6).
+    assert_eq!(n(&s["replay_size"]), received, "{s}");
+    let actors = s["actors"].as_array().unwrap();
+    let names: Vec<&str> = actors.iter().map(|a| a["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["actor-0", "actor-0-r1", "actor-1"], "{s}");
+    // The learner's total is the sum of what it accepted from each process: no batch counted
+    // twice, none counted that no process sent.
+    assert_eq!(actors.iter().map(|a| n(&a["transitions_received"])).sum::<u64>(), received);
+    for a in actors {
+        assert_eq!(n(&a["duplicate_batches"]), 0, "{a}");
+        assert!(n(&a["transitions_received"]) > 0, "{a}");
+    }
+
+    // The killed process: no summary, so what it sent is unknown; what the learner accepted
+    // from it before the kill stays counted (nothing of a finished batch lost).
+    let killed = &actors[0];
+    assert!(killed["transitions_sent"].is_null(), "{killed}");
+    assert_eq!(killed["clean_exit"], false);
+    assert_eq!(killed["replaced_by"], "actor-0-r1");
+    assert!(n(&killed["transitions_received"]) >= received_by(&at_kill, "actor-0"), "{killed}");
+    assert_eq!(s["unreported_actors"], serde_json::json!(["actor-0"]));
+    assert_eq!(n(&s["transitions_received_from_unreported"]), n(&killed["transitions_received"]));
+
+    // The survivors: everything they sent was received, each acknowledged once.
+    for a in &actors[1..] {
+        assert_eq!(a["clean_exit"], true, "{a}");
+        assert_eq!(n(&a["transitions_sent"]), n(&a["transitions_received"]), "{a}");
+        let own =
+            read_json(&out.join("actors").join(a["name"].as_str().unwrap()).join("summary.json"))
+                .unwrap();
+        assert_eq!(n(&own["transitions_acked"]), n(&own["transitions_sent"]), "{own}");
+        assert_eq!(n(&own["link"]["transitions_undelivered"]), 0, "{own}");
+    }
+    assert_eq!(s["transitions_accounted"], true, "{s}");
+    assert_eq!(
+        n(&s["transitions_sent"]) + n(&s["transitions_received_from_unreported"]),
+        received,
+        "{s}"
+    );
+    assert!(started.elapsed() < Duration::from_secs(120));
+
+    // The same command on an empty directory and on the run's: fresh, then resumed.
+    let fresh = dir.path().join("fresh");
+    let log = learner_under_a_supervisor(&fresh);
+    assert!(log.contains("no complete checkpoint yet; starting fresh"), "{log}");
+    let log = learner_under_a_supervisor(&out);
+    assert!(log.contains("--resume-if-present: resuming") && log.contains("resumed"), "{log}");
+}
+
+/// Starts `dvnav learner --resume-if-present` on `out`, waits until `/readyz` answers 200
+/// (`/healthz` too), stops it with SIGTERM and returns its log.
+fn learner_under_a_supervisor(out: &Path) -> String {
+    std::fs::create_dir_all(out).unwrap();
+    let log_path = out.join("supervised-learner.log");
+    let mut learner = Command::new(env!("CARGO_BIN_EXE_dvnav"))
+        .args(["learner", "--resume-if-present", "--listen", "127.0.0.1:0"])
+        .args(["--metrics-addr", "127.0.0.1:0", "--out"])
+        .arg(out)
+        .arg("--addr-file")
+        .arg(out.join("supervised.addr"))
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(&log_path).unwrap())
+        .spawn()
+        .unwrap();
+    let log = || std::fs::read_to_string(&log_path).unwrap_or_default();
+    wait_for("the learner's address file", Duration::from_secs(60), || {
+        out.join("supervised.addr").exists().then_some(())
+    });
+    let metrics = std::fs::read_to_string(out.join("metrics.addr")).unwrap();
+    wait_for("/readyz 200", Duration::from_secs(60), || {
+        assert!(learner.try_wait().unwrap().is_none(), "the learner exited: {}", log());
+        (http_get(metrics.trim(), "/readyz") == "HTTP/1.1 200 OK").then_some(())
+    });
+    assert_eq!(http_get(metrics.trim(), "/healthz"), "HTTP/1.1 200 OK");
+    // SAFETY: kill(2) on our own child.
+    assert_eq!(unsafe { libc::kill(learner.id() as i32, libc::SIGTERM) }, 0);
+    let status = learner.wait().unwrap();
+    assert!(status.success(), "{}", log());
+    log()
+}

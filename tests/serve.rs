@@ -1,0 +1,272 @@
+//! `dvnav serve`, the DVST controller service, as a robot sees it: a real server process with
+//! the shipped meta agent (`models/meta-r0.2`) on port 0, called over gRPC. Commands are those
+//! of the meta agent through DVST, bit for bit; malformed requests get INVALID_ARGUMENT naming
+//! the field; a new footprint changes μ; with a token, calls without it are UNAUTHENTICATED;
+//! SIGTERM stops the server cleanly.
+
+use dvnav_common::dvst::{Dvst, VariedRobot};
+use dvnav_common::policy::{MetaAgent, NavPolicy};
+use dvnav_proto::controller::v1::controller_client::ControllerClient;
+use dvnav_proto::controller::v1::{ActRequest, InfoRequest, SetFootprintRequest};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+use tonic::Code;
+use tonic::transport::Channel;
+
+fn repo(path: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(path)
+}
+
+/// A `dvnav serve` process, killed if a test fails before stopping it.
+struct Server {
+    child: Child,
+    log: PathBuf,
+    url: String,
+}
+
+impl Server {
+    fn start(dir: &Path, footprint: &str, extra: &[&str]) -> Server {
+        let addr_file = dir.join("addr");
+        let log = dir.join("serve.log");
+        let child = Command::new(env!("CARGO_BIN_EXE_dvnav"))
+            .args(["serve", "--listen", "127.0.0.1:0", "--checkpoint"])
+            .arg(repo("models/meta-r0.2"))
+            .arg("--footprint")
+            .arg(repo(footprint))
+            .arg("--addr-file")
+            .arg(&addr_file)
+            .args(extra)
+            .env("RUST_LOG", "info")
+            .env_remove("DVNAV_TOKEN")
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .unwrap();
+        let mut server = Server { child, log, url: String::new() };
+        let deadline = Instant::now() + Duration::from_secs(60);
+        while !addr_file.exists() {
+            if let Some(st) = server.child.try_wait().unwrap() {
+                panic!("dvnav serve exited with {st}: {}", server.log());
+            }
+            assert!(Instant::now() < deadline, "no address file: {}", server.log());
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        server.url = format!("http://{}", std::fs::read_to_string(&addr_file).unwrap());
+        server
+    }
+
+    fn log(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
+    async fn client(&self) -> ControllerClient<Channel> {
+        ControllerClient::connect(self.url.clone()).await.unwrap()
+    }
+
+    fn terminate(&self) {
+        // SAFETY: signals a child this test started and still owns.
+        unsafe { libc::kill(self.child.id() as i32, libc::SIGTERM) };
+    }
+
+    fn exited(&mut self, deadline: Instant) -> Option<(std::process::ExitStatus, String)> {
+        let st = self.child.try_wait().unwrap();
+        assert!(st.is_some() || Instant::now() < deadline, "still running: {}", self.log());
+        st.map(|st| (st, self.log()))
+    }
+
+    /// SIGTERM, then the exit status and the log. Async, so that the test's runtime goes on
+    /// driving the clients' connections while the server closes them.
+    async fn stop(mut self) -> (std::process::ExitStatus, String) {
+        self.terminate();
+        let deadline = Instant::now() + Duration::from_secs(30);
+        loop {
+            if let Some(done) = self.exited(deadline) {
+                return done;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    }
+
+    /// SIGTERM while this thread blocks: its clients' connections stay open, unanswered.
+    fn stop_blocking(mut self) -> (std::process::ExitStatus, String) {
+        self.terminate();
+        let deadline = Instant::now() + Duration::from_secs(30);
+        loop {
+            if let Some(done) = self.exited(deadline) {
+                return done;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        if self.child.try_wait().ok().flatten().is_none() {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+}
+
+/// The k-th observation of a robot moving through a room: a varying scan, goal and velocity.
+fn request(k: usize) -> ActRequest {
+    ActRequest {
+        scan: (0..540).map(|i| 0.3 + 4.0 * (1.0 + ((i + 11 * k) as f32 * 0.04).sin())).collect(),
+        goal_distance: 0.4 + 0.3 * k as f64,
+        goal_angle: -1.2 + 0.25 * k as f64,
+        v: 0.05 * k as f64,
+        omega: 0.2 - 0.04 * k as f64,
+        robot_id: "test-robot".into(),
+    }
+}
+
+fn invalid(e: tonic::Status, field: &str) {
+    assert_eq!(e.code(), Code::InvalidArgument, "{e:?}");
+    assert!(e.message().starts_with(&format!("`{field}`: ")), "{e:?}");
+}
+
+#[tokio::test]
+async fn a_robot_drives_through_the_service_and_changes_its_footprint() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start(dir.path(), "footprints/small-0.15.toml", &[]);
+    let mut client = server.client().await;
+
+    let info = client.info(InfoRequest {}).await.unwrap().into_inner();
+    assert_eq!(info.scan_beams, 540);
+    assert_eq!((info.scan_fov_deg, info.range_min, info.range_max), (270.0, 0.02, 10.0));
+    assert!((info.mu - 0.75).abs() < 1e-12, "{info:?}");
+    assert_eq!((info.footprint.as_str(), info.footprint_version), ("small r=0.15", 1));
+    assert_eq!(
+        (info.model.as_str(), info.meta_robot.as_str()),
+        ("meta-r0.2", "circle r = 0.200 m")
+    );
+    assert!(info.model_version.starts_with("fnv1a64:"), "{info:?}");
+    assert_eq!((info.v_max, info.control_period_s), (0.5, 0.2));
+
+    // The same meta agent wrapped in DVST in this process answers the same, bit for bit.
+    let (agent, _) = MetaAgent::load(&repo("models/meta-r0.2")).unwrap();
+    let robot = VariedRobot::load(&repo("footprints/small-0.15.toml")).unwrap();
+    let mut direct = Dvst::new(agent, robot).unwrap().with_scan_range(Some([0.02, 10.0])).unwrap();
+    for k in 0..10 {
+        let r = request(k);
+        let mut obs = r.scan.clone();
+        obs.extend([r.goal_distance, r.goal_angle, r.v, r.omega].map(|x| x as f32));
+        let want = direct.act(&obs).unwrap();
+        let got = client.act(r).await.unwrap().into_inner();
+        assert_eq!((got.v, got.omega), want, "call {k}");
+        assert_eq!((got.mu, got.footprint_version), (info.mu, 1));
+        assert_eq!(got.model_version, info.model_version);
+        assert!(got.v.abs() <= 0.5 && got.omega.abs() <= info.omega_max, "{got:?}");
+    }
+
+    // Malformed requests: the field is named, nothing is answered.
+    let short = ActRequest { scan: vec![1.0; 539], ..request(0) };
+    let e = client.act(short).await.unwrap_err();
+    invalid(e.clone(), "scan");
+    assert!(e.message().contains("539 ranges") && e.message().contains("540 beams"), "{e:?}");
+    let mut nan = request(1);
+    nan.scan[5] = f32::NAN;
+    invalid(client.act(nan).await.unwrap_err(), "scan[5]");
+    let mut inf = request(1);
+    inf.scan[539] = f32::INFINITY;
+    invalid(client.act(inf).await.unwrap_err(), "scan[539]");
+    let e = client.act(ActRequest { goal_distance: f64::NAN, ..request(2) }).await.unwrap_err();
+    invalid(e, "goal_distance");
+    let e = client.act(ActRequest { omega: f64::INFINITY, ..request(2) }).await.unwrap_err();
+    invalid(e, "omega");
+
+    // It picks up cargo: the 0.5 m circle, μ = 2.5; a bad file changes nothing.
+    let text = std::fs::read_to_string(repo("footprints/circle-0.5.toml")).unwrap();
+    let set = |footprint_toml: String| SetFootprintRequest {
+        footprint_toml,
+        robot_id: "test-robot".into(),
+    };
+    let changed = client.set_footprint(set(text)).await.unwrap().into_inner();
+    assert!((changed.mu - 2.5).abs() < 1e-12, "{changed:?}");
+    assert_eq!(changed.scaled_robot, "circle r = 0.500 m");
+    assert_eq!((changed.footprint.as_str(), changed.footprint_version), ("circle r=0.5", 2));
+    let e = client.set_footprint(set("[[parts]]\nshape = \"hexagon\"\n".into())).await.unwrap_err();
+    invalid(e.clone(), "footprint_toml");
+    assert!(e.message().contains("line 2: unknown variant `hexagon`"), "{e:?}");
+    let got = client.act(request(3)).await.unwrap().into_inner();
+    assert_eq!((got.mu, got.footprint_version), (changed.mu, 2), "{got:?}");
+    assert_eq!(got.footprint, "circle r=0.5");
+    let info = client.info(InfoRequest {}).await.unwrap().into_inner();
+    assert_eq!((info.mu, info.footprint_version), (changed.mu, 2));
+
+    drop(client);
+    let (status, log) = server.stop().await;
+    assert!(status.success(), "{status}: {log}");
+    for line in [
+        "controller listening",
+        "footprint=small r=0.15",
+        "footprint changed",
+        "mu=2.5",
+        "controller stopped",
+    ] {
+        assert!(log.contains(line), "`{line}` not in the log:\n{log}");
+    }
+    assert!(log.contains("commands=11"), "10 commands before the change, 1 after:\n{log}");
+}
+
+#[tokio::test]
+async fn with_a_token_calls_without_it_are_unauthenticated() {
+    let dir = tempfile::tempdir().unwrap();
+    let token_file = dir.path().join("token");
+    std::fs::write(&token_file, "s3cret-token\n").unwrap();
+    let token = token_file.to_str().unwrap();
+    let server =
+        Server::start(dir.path(), "footprints/paper-medium.toml", &["--token-file", token]);
+    let mut client = server.client().await;
+
+    let e = client.act(request(0)).await.unwrap_err();
+    assert_eq!(e.code(), Code::Unauthenticated, "{e:?}");
+    let e = client.info(InfoRequest {}).await.unwrap_err();
+    assert_eq!(e.code(), Code::Unauthenticated, "{e:?}");
+    let with = |t: &str, r: ActRequest| {
+        let mut req = tonic::Request::new(r);
+        req.metadata_mut().insert("authorization", t.parse().unwrap());
+        req
+    };
+    let e = client.act(with("Bearer wrong", request(0))).await.unwrap_err();
+    assert_eq!(e.code(), Code::Unauthenticated, "{e:?}");
+    let e = client.act(with("s3cret-token", request(0))).await.unwrap_err();
+    assert_eq!(e.code(), Code::Unauthenticated, "without `Bearer `: {e:?}");
+    let mut set = tonic::Request::new(SetFootprintRequest {
+        footprint_toml: "[[parts]]\nshape = \"circle\"\ncenter = [0, 0]\nradius = 0.5\n".into(),
+        robot_id: String::new(),
+    });
+    set.metadata_mut().insert("authorization", "Bearer wrong".parse().unwrap());
+    assert_eq!(client.set_footprint(set).await.unwrap_err().code(), Code::Unauthenticated);
+
+    // With the token: answered; and a malformed request is still judged on its own.
+    let ok = client.act(with("Bearer s3cret-token", request(0))).await.unwrap().into_inner();
+    assert!((ok.mu - 1.85).abs() < 1e-12 && ok.footprint_version == 1, "{ok:?}");
+    let short = ActRequest { scan: vec![1.0; 10], ..request(0) };
+    invalid(client.act(with("Bearer s3cret-token", short)).await.unwrap_err(), "scan");
+
+    drop(client);
+    let (status, log) = server.stop().await;
+    assert!(status.success(), "{status}: {log}");
+    assert!(log.contains("token=true") && log.contains("commands=1"), "{log}");
+    assert!(!log.contains("s3cret"), "the token is never logged:\n{log}");
+}
+
+/// A robot whose process hangs with its connection open does not keep the server from
+/// stopping: after a short grace the server closes the connection and exits.
+#[tokio::test]
+async fn a_hung_client_does_not_keep_the_server_from_stopping() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start(dir.path(), "footprints/circle-0.5.toml", &[]);
+    let mut client = server.client().await;
+    assert_eq!(client.info(InfoRequest {}).await.unwrap().into_inner().scan_beams, 540);
+    // From here this test's (single-threaded) runtime no longer drives the connection.
+    let t = Instant::now();
+    let (status, log) = server.stop_blocking();
+    assert!(status.success(), "{status}: {log}");
+    assert!(t.elapsed() < Duration::from_secs(10), "took {:?}: {log}", t.elapsed());
+    assert!(log.contains("connections still open at shutdown"), "{log}");
+    drop(client);
+}

@@ -1,0 +1,78 @@
+//! The shipped meta agent (`models/meta-r0.2`) does on a fresh checkout what docs/results.md
+//! says it does: the curriculum rooms (random episodes and every evaluation route), the gate
+//! test through DVST, and the dynamic scenario. The floors are the documented figures less a
+//! margin for evaluation seeds; a regression in the simulator, the networks, DVST or the
+//! evaluator that costs real performance fails here.
+
+use serde_json::Value;
+use std::process::Command;
+
+const MODEL: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/models/meta-r0.2");
+
+fn eval(args: &[&str]) -> Vec<Value> {
+    let out = Command::new(env!("CARGO_BIN_EXE_dvnav"))
+        .args(["eval", "--checkpoint", MODEL, "--json"])
+        .args(args)
+        .env("CANDLE_NUM_THREADS", "1")
+        .output()
+        .expect("dvnav runs");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    v.as_array().expect("a list").clone()
+}
+
+fn by_key<'a>(rows: &'a [Value], key: &str, value: &str) -> &'a Value {
+    rows.iter().find(|r| r[key].to_string().trim_matches('"') == value).unwrap_or_else(|| {
+        panic!("no row with {key} = {value}: {rows:?}");
+    })
+}
+
+#[test]
+fn navigates_every_curriculum_room() {
+    let rows = eval(&["--episodes", "100", "--seed", "7"]);
+    assert_eq!(rows.len(), 4);
+    for r in &rows {
+        let success = r["success_rate"].as_f64().unwrap();
+        assert!(success >= 0.95, "{}: success {success}", r["room"]);
+        assert_eq!(
+            r["route"]["completed"],
+            Value::Bool(true),
+            "{}: route {}",
+            r["room"],
+            r["route"]
+        );
+    }
+    assert!(by_key(&rows, "room", "env3")["success_rate"].as_f64().unwrap() >= 0.95);
+}
+
+#[test]
+fn gate_test_through_dvst() {
+    let rows = eval(&["--scenario", "gate"]);
+    assert_eq!(rows.len(), 12, "the paper's twelve robots");
+    let successes = rows.iter().filter(|r| r["outcome"] == "success").count();
+    assert!(successes >= 9, "{successes} of 12 reached the goal: {rows:?}");
+    // The small robots take the gate on a near-straight path, the big ones the left path.
+    for r in ["0.2", "0.25"] {
+        let row = by_key(&rows, "radius", r);
+        assert_eq!(
+            (row["outcome"].as_str(), row["route"].as_str()),
+            (Some("success"), Some("gate"))
+        );
+        assert!(row["path_length_m"].as_f64().unwrap() < 3.2, "{row}");
+    }
+    for row in rows.iter().filter(|r| r["radius"].as_f64().unwrap() >= 0.5) {
+        assert_eq!(
+            (row["outcome"].as_str(), row["route"].as_str()),
+            (Some("success"), Some("left"))
+        );
+    }
+}
+
+#[test]
+fn dynamic_obstacles_for_three_sizes() {
+    let rows = eval(&["--scenario", "dynamic"]);
+    assert_eq!(rows.len(), 3);
+    for r in &rows {
+        assert_eq!(r["success_rate"].as_f64(), Some(1.0), "{r}");
+    }
+}
