@@ -12,7 +12,8 @@
 //! - [`policy`]: [`policy::NavPolicy`], observation in, velocity out: the trained agent, the
 //!   PID baseline, and what DVST wraps.
 //! - [`dvst`]: dimension-variable skill transfer: the meta robot, μ, the varied-robot file,
-//!   observation and policy transfer, and [`dvst::Dvst`] that wraps any policy.
+//!   observation and policy transfer, [`dvst::Dvst`] that wraps any policy, and
+//!   [`dvst::DvstController`], the controller behind `dvnav serve`.
 //! - [`core`]: Acme-style seams: [`core::TransitionBatch`], [`core::Adder`],
 //!   [`core::VariableSource`], so an environment loop runs against an in-process learner in
 //!   tests and against the gRPC one in production.
