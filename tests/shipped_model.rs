@@ -8,10 +8,15 @@ use serde_json::Value;
 use std::process::Command;
 
 const MODEL: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/models/meta-r0.2");
+const SAC_RI: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/models/sac-ri");
 
 fn eval(args: &[&str]) -> Vec<Value> {
+    eval_model(MODEL, args)
+}
+
+fn eval_model(model: &str, args: &[&str]) -> Vec<Value> {
     let out = Command::new(env!("CARGO_BIN_EXE_dvnav"))
-        .args(["eval", "--checkpoint", MODEL, "--json"])
+        .args(["eval", "--checkpoint", model, "--json"])
         .args(args)
         .env("CANDLE_NUM_THREADS", "1")
         .output()
@@ -75,4 +80,32 @@ fn dynamic_obstacles_for_three_sizes() {
     for r in &rows {
         assert_eq!(r["success_rate"].as_f64(), Some(1.0), "{r}");
     }
+}
+
+/// The paper's comparison: the radius-as-input baseline drives each robot with its own radius
+/// and fails where DVST does not (docs/results.md).
+#[test]
+fn the_sac_ri_baseline_fails_beyond_its_training_range_and_detours_small_robots() {
+    let rows = eval_model(SAC_RI, &["--scenario", "gate"]);
+    assert_eq!(rows.len(), 12);
+    for row in &rows {
+        let r = row["radius"].as_f64().unwrap();
+        assert_eq!(row["transfer"], "radius", "{row}");
+        if r >= 0.5 {
+            assert_ne!(row["outcome"], "success", "R = {r} beyond the training range: {row}");
+        }
+    }
+    let small = by_key(&rows, "radius", "0.2");
+    assert_eq!(
+        (small["outcome"].as_str(), small["route"].as_str()),
+        (Some("success"), Some("left"))
+    );
+    let dvst = eval(&["--scenario", "gate"]);
+    let reached = |rows: &[Value]| rows.iter().filter(|r| r["outcome"] == "success").count();
+    assert!(
+        reached(&dvst) > reached(&rows),
+        "DVST {} vs SAC_RI {}",
+        reached(&dvst),
+        reached(&rows)
+    );
 }
