@@ -288,3 +288,50 @@ fn training_appends_evaluation_rows_every_n_updates() {
     let logged = read_episodes(&out.join("mcap/eval")).unwrap();
     assert!(logged.len() >= 8, "at least one leg per room and evaluation");
 }
+
+#[test]
+fn footprint_files_drive_robots_of_any_shape_through_dvst() {
+    let dir = tempfile::tempdir().unwrap();
+    let ckpt = dir.path().join("ckpt");
+    write_checkpoint(&ckpt, &tiny_config());
+    let root = env!("CARGO_MANIFEST_DIR");
+    let rect = format!("{root}/footprints/rect-with-cargo.toml");
+    let circ = format!("{root}/footprints/circle-0.5.toml");
+    let c = ckpt.to_str().unwrap();
+    let rows = json(&eval(&[
+        "--checkpoint",
+        c,
+        "--scenario",
+        "gate",
+        "--footprint",
+        &rect,
+        "--footprint",
+        &circ,
+        "--json",
+    ]));
+    assert_eq!(rows.len(), 2);
+    // μ as `dvnav transfer` computes it: (farthest point 0.461 m + margin 0.03 m) / 0.2 m.
+    let mu = rows[0]["mu"].as_f64().unwrap();
+    assert!((mu - 2.457).abs() < 1e-3, "{mu}");
+    assert!((rows[0]["radius"].as_f64().unwrap() - 0.461).abs() < 1e-3, "{}", rows[0]);
+    assert!((rows[1]["mu"].as_f64().unwrap() - 2.5).abs() < 1e-9, "{}", rows[1]);
+    // A file whose meta robot is not the checkpoint's is refused; so is --footprint with --radii
+    // or in the training scenario.
+    let cart = format!("{root}/footprints/cart-with-cargo.toml");
+    let out = eval(&["--checkpoint", c, "--scenario", "gate", "--footprint", &cart]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("meta robot differs"));
+    let out = eval(&["--checkpoint", c, "--footprint", &rect]);
+    assert!(String::from_utf8_lossy(&out.stderr).contains("gate and dynamic"));
+    let out = eval(&[
+        "--checkpoint",
+        c,
+        "--scenario",
+        "gate",
+        "--footprint",
+        &rect,
+        "--radii",
+        "0.2:0.3:0.1",
+    ]);
+    assert!(!out.status.success());
+}

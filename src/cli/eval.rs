@@ -38,6 +38,11 @@ pub struct EvalArgs {
     /// 0.20:0.75:0.05, the paper's twelve robots; dynamic: default 0.2:0.6:0.2).
     #[arg(long, value_parser = parse_radii_arg)]
     pub radii: Option<Radii>,
+    /// Gate and dynamic scenarios: drive these robots instead of circles (footprint files as
+    /// `dvnav transfer` reads them: any shape, cargo, margin, own velocity bounds; repeatable).
+    /// Reports give each robot's bounding radius.
+    #[arg(long, value_name = "FILE", conflicts_with = "radii")]
+    pub footprint: Vec<PathBuf>,
     /// Seed of the random episodes' starts and goals.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -48,9 +53,10 @@ pub struct EvalArgs {
     #[arg(long, value_enum)]
     pub transfer: Option<Transfer>,
     /// DVST safety margin (m): the scaled robot covers the robot inflated by this much (the
-    /// paper inflates its real robots' radii by 0.03 m).
-    #[arg(long, default_value_t = 0.0)]
-    pub margin: f64,
+    /// paper inflates its real robots' radii by 0.03 m). Default: 0 for circles, a footprint
+    /// file's own `margin`.
+    #[arg(long)]
+    pub margin: Option<f64>,
     /// Print JSON: one object per room (training, dynamic) or per robot (gate).
     #[arg(long)]
     pub json: bool,
@@ -161,9 +167,10 @@ fn load_checkpoint(path: &Path) -> anyhow::Result<(Vec<u8>, Config)> {
 fn robot_policy(
     weights: &[u8],
     cfg: &Config,
+    robot: Option<&VariedRobot>,
     radius: f64,
     transfer: Transfer,
-    margin: f64,
+    margin: Option<f64>,
 ) -> anyhow::Result<(Box<dyn NavPolicy>, f64)> {
     let agent = MetaAgent::from_safetensors(weights, cfg)?;
     match transfer {
@@ -185,7 +192,20 @@ fn robot_policy(
             let meta = MetaRobot::from_footprint(&trained).ok_or_else(|| {
                 anyhow::anyhow!("DVST needs a circular or rectangular meta robot; the checkpoint's robot is `{}`", trained.name)
             })?;
-            let robot = VariedRobot { meta, margin, ..VariedRobot::new(Footprint::circle(radius)) };
+            let mut robot = match robot {
+                Some(r) => {
+                    anyhow::ensure!(
+                        r.meta == meta,
+                        "the footprint file's meta robot differs from the checkpoint's (`{}`)",
+                        trained.name
+                    );
+                    r.clone()
+                }
+                None => VariedRobot { meta, ..VariedRobot::new(Footprint::circle(radius)) },
+            };
+            if let Some(m) = margin {
+                robot.margin = m;
+            }
             let lidar = &cfg.env.lidar;
             let dvst = Dvst::new(agent, robot)?
                 .with_scan_range(Some([lidar.range_min, lidar.range_max]))?;
@@ -193,6 +213,11 @@ fn robot_policy(
             Ok((Box::new(dvst), mu))
         }
     }
+}
+
+/// The robots of `--footprint`, in order.
+fn load_robots(files: &[PathBuf]) -> anyhow::Result<Vec<VariedRobot>> {
+    files.iter().map(|f| VariedRobot::load(f).map_err(anyhow::Error::from)).collect()
 }
 
 /// The scenario's tasks, and the room each group of results is drawn in.
@@ -221,6 +246,16 @@ fn tasks(args: &EvalArgs, cfg: &Config) -> anyhow::Result<Vec<Task>> {
                 Some(r) => r.0.clone(),
                 None => parse_radii(default)?,
             };
+            if !args.footprint.is_empty() {
+                let robots = load_robots(&args.footprint)?;
+                let radii: Vec<f64> =
+                    robots.iter().map(|r| r.footprint.bounding_radius()).collect();
+                let mut tasks = robot_tasks(&room, &route, &radii, args.seed);
+                for (t, r) in tasks.iter_mut().zip(robots) {
+                    t.footprint = Some(r.footprint);
+                }
+                return Ok(tasks);
+            }
             if let Some(r) = radii.iter().find(|&&r| 2.0 * r >= room.side()) {
                 anyhow::bail!(
                     "a robot of radius {r} m does not fit the {0}x{0} m room",
@@ -236,10 +271,15 @@ fn tasks(args: &EvalArgs, cfg: &Config) -> anyhow::Result<Vec<Task>> {
 pub fn run(args: EvalArgs) -> anyhow::Result<ExitCode> {
     anyhow::ensure!(args.batch > 0, "--batch must be at least 1");
     anyhow::ensure!(
-        args.margin.is_finite() && args.margin >= 0.0,
-        "--margin must be a length of at least 0 m, not {}",
+        args.margin.is_none_or(|m| m.is_finite() && m >= 0.0),
+        "--margin must be a length of at least 0 m, not {:?}",
         args.margin
     );
+    anyhow::ensure!(
+        args.footprint.is_empty() || args.scenario != Scenario::Training,
+        "--footprint is for the gate and dynamic scenarios"
+    );
+    let robots = load_robots(&args.footprint)?;
     if args.scenario == Scenario::Training && args.radii.is_some() {
         anyhow::bail!("--radii is for the gate and dynamic scenarios");
     }
@@ -254,9 +294,11 @@ pub fn run(args: EvalArgs) -> anyhow::Result<ExitCode> {
         Scenario::Training => owned.push(Box::new(MetaAgent::from_safetensors(&weights, &cfg)?)),
         Scenario::Gate | Scenario::Dynamic => {
             for t in &tasks {
+                let robot = robots.get(t.policy);
                 let (p, mu) = robot_policy(
                     &weights,
                     &cfg,
+                    robot,
                     t.radius.unwrap_or(cfg.env.robot_radius),
                     transfer,
                     args.margin,
