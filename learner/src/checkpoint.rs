@@ -130,33 +130,62 @@ pub fn write(
     replay: Option<&ReplayBuffer>,
 ) -> anyhow::Result<PathBuf> {
     let root = out_dir.join("checkpoints");
-    std::fs::create_dir_all(&root)?;
+    std::fs::create_dir_all(&root)
+        .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", root.display()))?;
     let name = format!("ckpt-{:010}", meta.updates);
     let tmp = root.join(format!("{name}.tmp"));
     let dest = root.join(&name);
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp)?;
     }
-    std::fs::create_dir_all(&tmp)?;
-    let state = safetensors::tensor::serialize(learner.state_tensors(), None)?;
-    std::fs::write(tmp.join("state.safetensors"), state)?;
-    std::fs::write(tmp.join("policy.safetensors"), learner.policy_safetensors()?)?;
-    std::fs::write(tmp.join("config.toml"), config_toml)?;
-    if let Some(replay) = replay {
-        replay.save(&tmp.join(REPLAY_FILE))?;
-        std::fs::File::open(tmp.join(REPLAY_FILE))?.sync_all()?;
-    }
-    // meta.json last: readers take a directory with one as complete.
-    std::fs::write(tmp.join("meta.json"), serde_json::to_vec_pretty(meta)?)?;
-    for f in ["state.safetensors", "policy.safetensors", "config.toml", "meta.json"] {
-        std::fs::File::open(tmp.join(f))?.sync_all()?;
+    // On any failure (disk full, a read-only or vanished directory) the half-written `.tmp` goes
+    // and the previous complete checkpoint stays the newest: nothing of it is touched before
+    // the new one is complete.
+    match write_into(&tmp, learner, meta, config_toml, replay) {
+        Ok(()) => {}
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(&tmp);
+            return Err(e.context(format!("writing checkpoint {}", tmp.display())));
+        }
     }
     if dest.exists() {
         std::fs::remove_dir_all(&dest)?;
     }
-    std::fs::rename(&tmp, &dest)?;
+    if let Err(e) = std::fs::rename(&tmp, &dest) {
+        let _ = std::fs::remove_dir_all(&tmp);
+        anyhow::bail!("cannot rename {} to {}: {e}", tmp.display(), dest.display());
+    }
     prune(&root)?;
     Ok(dest)
+}
+
+/// Writes the files of a checkpoint into `tmp` and syncs them; `meta.json` last.
+fn write_into(
+    tmp: &Path,
+    learner: &SacLearner,
+    meta: &CheckpointMeta,
+    config_toml: &str,
+    replay: Option<&ReplayBuffer>,
+) -> anyhow::Result<()> {
+    let io = |what: &str, r: std::io::Result<()>| {
+        r.map_err(|e| anyhow::anyhow!("cannot write {}: {e}", tmp.join(what).display()))
+    };
+    io("", std::fs::create_dir_all(tmp))?;
+    let state = safetensors::tensor::serialize(learner.state_tensors(), None)?;
+    io("state.safetensors", std::fs::write(tmp.join("state.safetensors"), state))?;
+    let policy = learner.policy_safetensors()?;
+    io("policy.safetensors", std::fs::write(tmp.join("policy.safetensors"), policy))?;
+    io("config.toml", std::fs::write(tmp.join("config.toml"), config_toml))?;
+    if let Some(replay) = replay {
+        replay.save(&tmp.join(REPLAY_FILE))?;
+        io(REPLAY_FILE, std::fs::File::open(tmp.join(REPLAY_FILE)).and_then(|f| f.sync_all()))?;
+    }
+    // meta.json last: readers take a directory with one as complete.
+    io("meta.json", std::fs::write(tmp.join("meta.json"), serde_json::to_vec_pretty(meta)?))?;
+    for f in ["state.safetensors", "policy.safetensors", "config.toml", "meta.json"] {
+        io(f, std::fs::File::open(tmp.join(f)).and_then(|f| f.sync_all()))?;
+    }
+    Ok(())
 }
 
 /// Complete checkpoints under `out_dir/checkpoints`, oldest first.
@@ -208,6 +237,7 @@ fn prune(root: &Path) -> anyhow::Result<()> {
 mod tests {
     use super::*;
     use crate::sac::SacNetworks;
+    use crate::state::LearnerState;
     use candle_core::Device;
     use dvnav_common::config::Config;
 
@@ -237,6 +267,68 @@ mod tests {
             std::fs::read(path.join("policy.safetensors")).unwrap(),
             a.policy_safetensors().unwrap()
         );
+    }
+
+    /// Disk full, as root. Root writes through permission bits, so a read-only directory
+    /// (chmod) proves nothing in this container; a per-process file-size limit does bind root:
+    /// a child process (this test binary again, running the ignored test below) writes the next
+    /// checkpoint under `ulimit -f 64` (64 KiB) with SIGXFSZ ignored, so its first large write
+    /// fails with EFBIG ("File too large") midway through the `.tmp` directory, exactly like
+    /// ENOSPC would. The write fails cleanly (no `.tmp` left, the error names the path and the
+    /// OS error), the failure is counted, and the previous checkpoint stays the newest and loads.
+    #[test]
+    fn a_checkpoint_that_cannot_be_written_leaves_the_previous_one_loadable() {
+        let dir = tempfile::tempdir().unwrap();
+        let a = learner(1);
+        let meta = CheckpointMeta { updates: 1, run_id: "r".into(), ..Default::default() };
+        let first = write(dir.path(), &a, &meta, "[run]\n", None).unwrap();
+        let exe = std::env::current_exe().unwrap();
+        let out = std::process::Command::new("bash")
+            .args(["-c", r#"trap '' XFSZ; ulimit -f 64; exec "$0" "$@""#])
+            .arg(&exe)
+            .args(["--exact", "checkpoint::tests::write_under_a_file_size_limit"])
+            .args(["--ignored", "--nocapture", "--test-threads=1"])
+            .env("DVNAV_CHECKPOINT_CHILD_DIR", dir.path())
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stdout).into_owned()
+            + &String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{text}");
+        assert!(text.contains("1 passed"), "the child ran: {text}");
+        // The previous checkpoint is the newest, whole, and loads into a fresh learner.
+        assert_eq!(latest(dir.path()).unwrap(), Some(first.clone()));
+        let names: Vec<_> = std::fs::read_dir(dir.path().join("checkpoints"))
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        assert_eq!(names, ["ckpt-0000000001"], "no .tmp left behind");
+        let (m, tensors) = read(&first).unwrap();
+        assert_eq!(m, meta);
+        let mut b = learner(2);
+        b.load_state(&tensors, m.updates, m.optimizer_steps).unwrap();
+        assert_eq!(b.policy_safetensors().unwrap(), a.policy_safetensors().unwrap());
+    }
+
+    /// The child of the test above (run only by it, with `--ignored`).
+    #[test]
+    #[ignore = "run by a_checkpoint_that_cannot_be_written_leaves_the_previous_one_loadable"]
+    fn write_under_a_file_size_limit() {
+        let dir = PathBuf::from(std::env::var_os("DVNAV_CHECKPOINT_CHILD_DIR").unwrap());
+        let cfg = Config::default();
+        let state = LearnerState::new(cfg, "r".into(), None, vec![]);
+        let a = learner(3);
+        let before = a.policy_safetensors().unwrap();
+        let meta = CheckpointMeta { updates: 2, run_id: "r".into(), ..Default::default() };
+        let e = write(&dir, &a, &meta, "[run]\n", None).unwrap_err();
+        let e = format!("{e:#}");
+        eprintln!("the failed write: {e}");
+        assert!(e.contains("ckpt-0000000002.tmp") && e.contains("File too large"), "{e}");
+        state.record_write_failure("checkpoint", &dir.join("checkpoints"), &e);
+        let st = state.status();
+        assert_eq!(st.write_failures.get("checkpoint"), Some(&1));
+        assert!(st.trainer_last_error.unwrap().contains("File too large"));
+        // Nothing in memory changed.
+        assert_eq!(a.policy_safetensors().unwrap(), before);
     }
 
     #[test]

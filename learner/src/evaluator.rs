@@ -47,6 +47,9 @@ pub struct Snapshot {
     pub policy: Vec<u8>,
 }
 
+/// Called with the path and the error when a write fails.
+pub type WriteFailure = Box<dyn Fn(&Path, &str) + Send>;
+
 /// The evaluator thread's handle.
 #[derive(Debug)]
 pub struct Evaluator {
@@ -58,6 +61,16 @@ impl Evaluator {
     /// Starts the evaluator thread for a run in `out_dir`, or `None` when
     /// `learner.eval_every_updates` is 0.
     pub fn start(cfg: &Config, out_dir: &Path) -> anyhow::Result<Option<Evaluator>> {
+        Self::start_reporting(cfg, out_dir, None)
+    }
+
+    /// [`Evaluator::start`], calling `on_write_failure(path, error)` when `eval.csv` cannot be
+    /// written (the trainer counts it; the row is lost, the next evaluation tries again).
+    pub fn start_reporting(
+        cfg: &Config,
+        out_dir: &Path,
+        on_write_failure: Option<WriteFailure>,
+    ) -> anyhow::Result<Option<Evaluator>> {
         if cfg.learner.eval_every_updates == 0 {
             return Ok(None);
         }
@@ -86,11 +99,18 @@ impl Evaluator {
                         .ok();
                 }
                 let result = pool.install(|| evaluate(&cfg, &rooms, &snap, logger.as_mut()));
-                match result.and_then(|(rows, wall)| {
-                    append_csv(&out.join("eval.csv"), &snap, &rows, wall)?;
-                    Ok((rows, wall))
-                }) {
-                    Ok((rows, wall)) => log_rows(&snap, &rows, wall),
+                let csv = out.join("eval.csv");
+                match result {
+                    Ok((rows, wall)) => {
+                        log_rows(&snap, &rows, wall);
+                        if let Err(e) = append_csv(&csv, &snap, &rows, wall) {
+                            let e = format!("{e:#}");
+                            match &on_write_failure {
+                                Some(report) => report(&csv, &e),
+                                None => tracing::error!(path = %csv.display(), error = %e, "cannot write eval.csv"),
+                            }
+                        }
+                    }
                     Err(e) => tracing::error!(updates = snap.updates, error = %format!("{e:#}"), "evaluation failed"),
                 }
             }

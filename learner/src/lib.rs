@@ -19,6 +19,7 @@
 //! - [`trainer`]: the training thread. [`checkpoint`]: atomic checkpoints and exact resume.
 //! - [`metrics`]: live metrics, Prometheus text over HTTP (`/metrics`) and `metrics.csv`.
 //! - [`mod@run`]: a whole learner process, for `dvnav learner` and `dvnav train`.
+//! - [`watchdog`]: names the component that stopped making progress (`dvnav_stalled`).
 
 pub mod bench;
 pub mod checkpoint;
@@ -34,5 +35,6 @@ pub mod service;
 pub mod state;
 pub mod trainer;
 pub mod variable_source;
+pub mod watchdog;
 
 pub use run::{LearnerOptions, LearnerSummary, run};

@@ -316,6 +316,39 @@ pub fn render_prometheus(sample: &Sample) -> String {
         "Transitions refused as malformed.",
         &one(s.transitions_rejected as f64),
     );
+    let rows = |m: &std::collections::BTreeMap<String, u64>, key: &str| -> Vec<(String, f64)> {
+        m.iter().map(|(k, v)| (format!("{{{key}=\"{}\"}}", label(k)), *v as f64)).collect()
+    };
+    metric(
+        "dvnav_requests_rejected_total",
+        "counter",
+        "Refused registrations and batches by reason: the offending field of a malformed batch, unknown_actor, protocol_version, unauthenticated, invalid_request, shutting_down, or stream (undecodable or oversized input).",
+        &rows(&s.rejected_by_reason, "reason"),
+    );
+    metric(
+        "dvnav_write_failures_total",
+        "counter",
+        "Failed writes by output (checkpoint, metrics_csv, eval_csv); training goes on and the next write tries again.",
+        &rows(&s.write_failures, "output"),
+    );
+    let stalled: Vec<(String, f64)> = ["ingest", "trainer", "rate_limiter"]
+        .iter()
+        .map(|c| c.to_string())
+        .chain(s.actors.iter().filter(|a| a.connected).map(|a| format!("actor:{}", a.name)))
+        .chain(s.stalled.iter().map(|x| x.component.clone()))
+        .collect::<std::collections::BTreeSet<_>>()
+        .into_iter()
+        .map(|c| {
+            let v = s.stalled.iter().any(|x| x.component == c) as u8 as f64;
+            (format!("{{component=\"{}\"}}", label(&c)), v)
+        })
+        .collect();
+    metric(
+        "dvnav_stalled",
+        "gauge",
+        "1 while the watchdog finds the component stuck (no progress for 30 s; see the learner log for its last error).",
+        &stalled,
+    );
     metric(
         "dvnav_replay_size",
         "gauge",
@@ -496,16 +529,19 @@ struct CsvLog {
 
 impl CsvLog {
     fn open(path: &Path, stages: usize) -> anyhow::Result<Self> {
-        let mut file = std::fs::OpenOptions::new().create(true).append(true).open(path)?;
-        if file.metadata()?.len() == 0 {
-            writeln!(file, "{}", csv_header(stages))?;
+        let fail = |e: std::io::Error| anyhow::anyhow!("cannot write {}: {e}", path.display());
+        let mut file =
+            std::fs::OpenOptions::new().create(true).append(true).open(path).map_err(fail)?;
+        if file.metadata().map_err(fail)?.len() == 0 {
+            writeln!(file, "{}", csv_header(stages)).map_err(fail)?;
         }
         Ok(Self { path: path.to_path_buf(), file })
     }
 
-    fn append(&mut self, sample: &Sample) {
+    fn append(&mut self, sample: &Sample, state: &LearnerState) {
+        // A failed row (disk full) is logged and counted; the next sample tries again.
         if let Err(e) = writeln!(self.file, "{}", csv_row(sample)) {
-            tracing::warn!(path = %self.path.display(), error = %e, "cannot append to metrics CSV");
+            state.record_write_failure("metrics_csv", &self.path, &e);
         }
     }
 }
@@ -528,7 +564,7 @@ pub async fn record(
             _ = ticks.tick() => {
                 let sample = sampler.sample(&state);
                 if let Some(c) = csv.as_mut() {
-                    c.append(&sample);
+                    c.append(&sample, &state);
                 }
             }
             _ = &mut stop => break,
@@ -536,7 +572,7 @@ pub async fn record(
     }
     let sample = sampler.sample(&state);
     if let Some(c) = csv.as_mut() {
-        c.append(&sample);
+        c.append(&sample, &state);
     }
     Ok(())
 }

@@ -15,6 +15,17 @@ struct State {
     closed: bool,
 }
 
+/// What [`RateLimiter::pressure`] reports.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Pressure {
+    /// Updates the ratio allows that the trainer has not done yet.
+    pub updates_owed: u64,
+    /// Ingestion would wait for the trainer now (backpressure on the actors).
+    pub ingest_blocked: bool,
+    /// The limiter is closed (end of run).
+    pub closed: bool,
+}
+
 /// The shared ratio keeper between async ingestion and the trainer thread.
 #[derive(Debug)]
 pub struct RateLimiter {
@@ -79,6 +90,18 @@ impl RateLimiter {
             if rx.changed().await.is_err() {
                 return;
             }
+        }
+    }
+
+    /// Updates owed now (allowed by the ratio but not yet done) and whether ingestion would
+    /// have to wait: what the watchdog ([`crate::watchdog`]) reads to tell a slow trainer from a
+    /// limiter that cannot make progress.
+    pub fn pressure(&self) -> Pressure {
+        let s = self.state.lock().expect("rate limiter lock");
+        Pressure {
+            updates_owed: self.updates_allowed(s.inserted).saturating_sub(s.updates),
+            ingest_blocked: !s.closed && !self.may_insert(s.inserted, s.updates),
+            closed: s.closed,
         }
     }
 

@@ -52,6 +52,20 @@ pub struct LearnerSummary {
     pub final_checkpoint: Option<PathBuf>,
 }
 
+/// Creates `dir` if needed and proves it writable by creating and removing a probe file, so an
+/// unwritable output directory fails at start with its path and the OS error, not at the first
+/// checkpoint.
+pub fn check_writable(dir: &std::path::Path) -> anyhow::Result<()> {
+    let fail = |e: std::io::Error| {
+        anyhow::anyhow!("output directory {} is not writable: {e}", dir.display())
+    };
+    std::fs::create_dir_all(dir).map_err(fail)?;
+    let probe = dir.join(".dvnav-write-probe");
+    std::fs::write(&probe, b"probe").map_err(fail)?;
+    std::fs::remove_file(&probe).map_err(fail)?;
+    Ok(())
+}
+
 /// Runs a learner on `listener` until the step budget is reached and the actors have left, or
 /// until `shutdown` resolves. Writes checkpoints and `learner_summary.json` into the run dir.
 pub async fn run(
@@ -61,8 +75,10 @@ pub async fn run(
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<LearnerSummary> {
     let started = Instant::now();
-    std::fs::create_dir_all(&opts.out_dir)?;
-    std::fs::write(opts.out_dir.join("config.toml"), cfg.to_toml_string())?;
+    check_writable(&opts.out_dir)?;
+    let config_path = opts.out_dir.join("config.toml");
+    std::fs::write(&config_path, cfg.to_toml_string())
+        .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", config_path.display()))?;
     let run_id = opts.run_id.clone().unwrap_or_else(|| {
         opts.out_dir.file_name().and_then(|n| n.to_str()).unwrap_or("run").to_string()
     });
@@ -104,6 +120,18 @@ pub async fn run(
         tokio::spawn(crate::metrics::record(
             state.clone(),
             Some(opts.out_dir.join("metrics.csv")),
+            async move {
+                let _ = stop.wait_for(|s| *s).await;
+            },
+        ))
+    };
+    // The watchdog: names a stuck component every heartbeat.
+    let watchdog = {
+        let mut stop = state.shutdown_signal();
+        tokio::spawn(crate::watchdog::run(
+            state.clone(),
+            crate::watchdog::HEARTBEAT,
+            crate::watchdog::STALL_AFTER,
             async move {
                 let _ = stop.wait_for(|s| *s).await;
             },
@@ -158,10 +186,21 @@ pub async fn run(
         .await?
         .map_err(|_| anyhow::anyhow!("the trainer thread panicked"))??;
     let final_checkpoint = if learner.updates() > 0 {
-        Some(trainer::write_checkpoint(&state, &learner, &sample_rng, &opts.out_dir)?)
+        match trainer::write_checkpoint(&state, &learner, &sample_rng, &opts.out_dir) {
+            Ok(path) => Some(path),
+            Err(e) => {
+                state.record_write_failure(
+                    "checkpoint",
+                    &opts.out_dir.join("checkpoints"),
+                    &format!("{e:#}"),
+                );
+                None
+            }
+        }
     } else {
         None
     };
+    watchdog.await?;
     server.await??;
     metrics.await??;
     if let Some(h) = metrics_http {

@@ -43,9 +43,18 @@ impl LearnerService {
     /// The tonic server for `state`, with message-size limits set for weights and batches
     /// ([`dvnav_proto::MAX_MESSAGE_BYTES`]) instead of gRPC's 4 MiB default.
     pub fn server(state: Arc<LearnerState>) -> pb::learner_server::LearnerServer<Self> {
+        Self::server_with_limit(state, dvnav_proto::MAX_MESSAGE_BYTES)
+    }
+
+    /// [`LearnerService::server`] with another message-size limit (tests use a small one to
+    /// send an oversized message without allocating 256 MiB).
+    pub fn server_with_limit(
+        state: Arc<LearnerState>,
+        max_message_bytes: usize,
+    ) -> pb::learner_server::LearnerServer<Self> {
         pb::learner_server::LearnerServer::new(Self::new(state))
-            .max_decoding_message_size(dvnav_proto::MAX_MESSAGE_BYTES)
-            .max_encoding_message_size(dvnav_proto::MAX_MESSAGE_BYTES)
+            .max_decoding_message_size(max_message_bytes)
+            .max_encoding_message_size(max_message_bytes)
     }
 
     fn authorize<T>(&self, req: &Request<T>) -> Result<(), Status> {
@@ -205,6 +214,7 @@ impl Learner for LearnerService {
                                 }
                             }
                             Err(e) => {
+                                // Counted by reason in `ingest`; the actor gets the status.
                                 let reason = e.to_string();
                                 let _ = tx.send(Err(e.into())).await;
                                 break (reason, false);
@@ -212,7 +222,16 @@ impl Learner for LearnerService {
                         }
                     }
                     Ok(None) => break ("stream closed by the actor".to_string(), true),
-                    Err(status) => break (format!("stream error: {}", status.message()), false),
+                    // Undecodable bytes or a message over the size limit: counted, and the
+                    // actor is told why (tonic's status, e.g. OUT_OF_RANGE for the size) before
+                    // the stream ends; the learner itself carries on.
+                    Err(status) => {
+                        let reason =
+                            format!("stream error: {} ({:?})", status.message(), status.code());
+                        state.count_rejection(actor, "stream", &reason);
+                        let _ = tx.send(Err(status)).await;
+                        break (reason, false);
+                    }
                 }
             };
             if let Some(id) = actor

@@ -44,6 +44,21 @@ pub enum LearnerError {
     ShuttingDown,
 }
 
+impl LearnerError {
+    /// The `reason` label this refusal is counted under (`dvnav_requests_rejected_total`):
+    /// the offending field for a malformed batch, else the kind of refusal.
+    pub fn reason(&self) -> &'static str {
+        match self {
+            LearnerError::ProtocolMismatch { .. } => "protocol_version",
+            LearnerError::Unauthenticated => "unauthenticated",
+            LearnerError::UnknownActor(_) => "unknown_actor",
+            LearnerError::Malformed(e) => e.field,
+            LearnerError::InvalidRequest(_) => "invalid_request",
+            LearnerError::ShuttingDown => "shutting_down",
+        }
+    }
+}
+
 /// Counters of one actor.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct ActorCounters {
@@ -81,6 +96,8 @@ pub struct ActorCounters {
     pub next_sequence: u64,
     /// Resent batches recognised and acknowledged without inserting them again.
     pub duplicate_batches: u64,
+    /// The last refusal or stream error of this actor (the watchdog reports it with a stall).
+    pub last_error: Option<String>,
 }
 
 /// What `Status` returns and the run summary is built from.
@@ -124,6 +141,17 @@ pub struct StatusSnapshot {
     pub losses_finite: bool,
     /// Rates, policy lag and per-stage outcomes ([`crate::metrics`]).
     pub live: crate::metrics::LiveSnapshot,
+    /// Refused requests and batches by reason ([`LearnerError::reason`], `stream` for a
+    /// stream that broke on undecodable or oversized input).
+    pub rejected_by_reason: BTreeMap<String, u64>,
+    /// Failed writes by output (`checkpoint`, `metrics_csv`, `eval_csv`); training goes on.
+    pub write_failures: BTreeMap<String, u64>,
+    /// The last failed write: output, path and OS error.
+    pub last_write_error: Option<String>,
+    /// The trainer's last error (a failed checkpoint, for one).
+    pub trainer_last_error: Option<String>,
+    /// Components the watchdog finds stuck now ([`crate::watchdog`]).
+    pub stalled: Vec<crate::watchdog::Stall>,
 }
 
 #[derive(Debug)]
@@ -137,6 +165,11 @@ struct Counters {
     metrics: crate::sac::UpdateMetrics,
     losses_finite: bool,
     done: bool,
+    rejected_by_reason: BTreeMap<String, u64>,
+    write_failures: BTreeMap<String, u64>,
+    last_write_error: Option<String>,
+    trainer_last_error: Option<String>,
+    stalled: Vec<crate::watchdog::Stall>,
 }
 
 /// What an actor gets back from registration.
@@ -220,6 +253,11 @@ impl LearnerState {
                 metrics: Default::default(),
                 losses_finite: true,
                 done: false,
+                rejected_by_reason: BTreeMap::new(),
+                write_failures: BTreeMap::new(),
+                last_write_error: None,
+                trainer_last_error: None,
+                stalled: Vec::new(),
             }),
             config_toml: cfg.to_toml_string(),
             cfg,
@@ -273,6 +311,17 @@ impl LearnerState {
         name: &str,
         protocol_version: u32,
     ) -> Result<Registration, LearnerError> {
+        self.register_checked(name, protocol_version).inspect_err(|e| {
+            self.count_rejection(None, e.reason(), &e.to_string());
+            tracing::warn!(name, error = %e, "refused a registration");
+        })
+    }
+
+    fn register_checked(
+        &self,
+        name: &str,
+        protocol_version: u32,
+    ) -> Result<Registration, LearnerError> {
         if protocol_version != dvnav_proto::PROTOCOL_VERSION {
             return Err(LearnerError::ProtocolMismatch {
                 got: protocol_version,
@@ -305,6 +354,45 @@ impl LearnerState {
         let actor_seed =
             self.cfg.run.seed.wrapping_mul(1_000_003).wrapping_add(actor_id as u64 + 1);
         Ok(Registration { actor_id, actor_seed, next_sequence })
+    }
+
+    /// Counts a refused request or batch under `reason`, and remembers `error` as the actor's
+    /// last error when the actor is known.
+    pub fn count_rejection(&self, actor_id: Option<u32>, reason: &str, error: &str) {
+        let mut c = self.counters.lock().expect("counters lock");
+        *c.rejected_by_reason.entry(reason.to_string()).or_default() += 1;
+        if let Some(a) = actor_id.and_then(|id| c.actors.get_mut(&id)) {
+            a.last_error = Some(error.to_string());
+        }
+    }
+
+    /// Records a failed write of `output` (`checkpoint`, `metrics_csv`, `eval_csv`) to `path`:
+    /// logs it at error level with the path and the OS error, and counts it. The caller goes
+    /// on (training state stays in memory) and tries again at the next opportunity.
+    pub fn record_write_failure(
+        &self,
+        output: &str,
+        path: &std::path::Path,
+        error: &dyn std::fmt::Display,
+    ) {
+        let message = format!("{output}: cannot write {}: {error}", path.display());
+        tracing::error!(output, path = %path.display(), error = %error, "write failed; training goes on, next attempt at the next opportunity");
+        let mut c = self.counters.lock().expect("counters lock");
+        *c.write_failures.entry(output.to_string()).or_default() += 1;
+        if output == "checkpoint" {
+            c.trainer_last_error = Some(message.clone());
+        }
+        c.last_write_error = Some(message);
+    }
+
+    /// Remembers the trainer's last error (reported by the watchdog with a trainer stall).
+    pub fn record_trainer_error(&self, error: String) {
+        self.counters.lock().expect("counters lock").trainer_last_error = Some(error);
+    }
+
+    /// Sets what the watchdog found stuck at its last heartbeat.
+    pub fn set_stalled(&self, stalled: Vec<crate::watchdog::Stall>) {
+        self.counters.lock().expect("counters lock").stalled = stalled;
     }
 
     /// The config text sent to actors.
@@ -349,7 +437,12 @@ impl LearnerState {
         let sequence = msg.sequence;
         {
             let mut c = self.counters.lock().expect("counters lock");
-            let a = c.actors.get_mut(&actor_id).ok_or(LearnerError::UnknownActor(actor_id))?;
+            let Some(a) = c.actors.get_mut(&actor_id) else {
+                let e = LearnerError::UnknownActor(actor_id);
+                *c.rejected_by_reason.entry(e.reason().to_string()).or_default() += 1;
+                tracing::warn!(actor_id, error = %e, "refused a batch");
+                return Err(e);
+            };
             if sequence < a.next_sequence {
                 a.duplicate_batches += 1;
                 tracing::debug!(actor_id, sequence, "duplicate batch acknowledged, not inserted");
@@ -360,9 +453,14 @@ impl LearnerState {
             Ok(b) => b,
             Err(e) => {
                 let mut c = self.counters.lock().expect("counters lock");
+                // A batch refused for its count claims an untrusted number of transitions:
+                // count at most the largest batch there can be.
+                let claimed = claimed.min(wire::MAX_BATCH_TRANSITIONS as u64);
                 c.rejected += claimed;
+                *c.rejected_by_reason.entry(e.field.to_string()).or_default() += 1;
                 if let Some(a) = c.actors.get_mut(&actor_id) {
                     a.transitions_rejected += claimed;
+                    a.last_error = Some(format!("malformed transition batch: {e}"));
                 }
                 tracing::warn!(actor_id, error = %e, "refused a malformed batch");
                 return Err(e.into());
@@ -573,6 +671,11 @@ impl LearnerState {
             skilled: c.curriculum.skilled().cloned(),
             losses_finite: c.losses_finite,
             live: self.live.snapshot(),
+            rejected_by_reason: c.rejected_by_reason.clone(),
+            write_failures: c.write_failures.clone(),
+            last_write_error: c.last_write_error.clone(),
+            trainer_last_error: c.trainer_last_error.clone(),
+            stalled: c.stalled.clone(),
         }
     }
 }
@@ -673,6 +776,185 @@ mod tests {
         let st = s.status();
         assert_eq!((st.transitions_received, st.replay_size), (6, 6));
         assert_eq!(st.actors[0].duplicate_batches, 1);
+    }
+
+    /// Bad input, fuzzed: thousands of well-formed but invalid batches (unknown actor, wrong
+    /// sizes, NaN/Inf, rewards and actions out of bounds, huge declared counts, contradictory
+    /// flags, unknown outcomes) and registrations with wrong protocol versions, mixed with valid
+    /// batches. Each invalid one is refused with the status code the service returns and
+    /// counted under its reason; the replay buffer grows by exactly the valid ones.
+    #[tokio::test]
+    async fn random_invalid_batches_are_refused_by_reason_and_never_reach_the_replay_buffer() {
+        use rand::{Rng, SeedableRng};
+        use tonic::Code;
+        let mut cfg = small_config();
+        cfg.run.steps = 1 << 40;
+        cfg.replay.capacity = 1 << 14;
+        cfg.sac.learning_starts = 1 << 40;
+        let s = LearnerState::new(cfg.clone(), "r".into(), None, vec![]);
+        let id = s.register("a", dvnav_proto::PROTOCOL_VERSION).unwrap().actor_id;
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(8);
+        let (mut seq, mut replay, mut rejected) = (0u64, 0u64, 0u64);
+        let mut by_reason: BTreeMap<String, u64> = BTreeMap::new();
+        let d = cfg.obs_dim();
+        let bad = |rng: &mut rand_pcg::Pcg64| match rng.random_range(0..3) {
+            0 => f32::NAN,
+            1 => f32::INFINITY,
+            _ => f32::NEG_INFINITY,
+        };
+        for i in 0..6_000 {
+            let n = rng.random_range(1..5usize);
+            let mut m = batch(&cfg, n, id, seq);
+            let sign = if rng.random() { 1.0 } else { -1.0 };
+            let expect: Option<(&str, Code)> = match i % 13 {
+                0 => {
+                    m.actor_id = rng.random_range(id + 1..=u32::MAX);
+                    Some(("unknown_actor", Code::InvalidArgument))
+                }
+                1 => {
+                    let k = rng.random_range(1..=d);
+                    if rng.random() {
+                        m.observations.truncate(n * d - k)
+                    } else {
+                        m.observations.extend(std::iter::repeat_n(0.0, k))
+                    }
+                    Some(("observations", Code::InvalidArgument))
+                }
+                2 => {
+                    m.next_observations.pop();
+                    Some(("next_observations", Code::InvalidArgument))
+                }
+                3 => {
+                    let j = rng.random_range(0..n * d);
+                    m.observations[j] = bad(&mut rng);
+                    Some(("observations", Code::InvalidArgument))
+                }
+                4 => {
+                    m.rewards[rng.random_range(0..n)] = bad(&mut rng);
+                    Some(("rewards", Code::InvalidArgument))
+                }
+                5 => {
+                    m.rewards[rng.random_range(0..n)] =
+                        sign * wire::MAX_ABS_REWARD * rng.random_range(1.001..1e6f32);
+                    Some(("rewards", Code::InvalidArgument))
+                }
+                6 => {
+                    m.actions[rng.random_range(0..2 * n)] = sign * rng.random_range(1.0001..1e6f32);
+                    Some(("actions", Code::InvalidArgument))
+                }
+                7 => {
+                    m.count = rng.random_range(wire::MAX_BATCH_TRANSITIONS as u32 + 1..=u32::MAX);
+                    Some(("count", Code::InvalidArgument))
+                }
+                8 => {
+                    m.count += rng.random_range(1..1000);
+                    Some(("observations", Code::InvalidArgument))
+                }
+                9 => {
+                    let j = rng.random_range(0..n);
+                    (m.terminated[j], m.truncated[j]) = (true, true);
+                    Some(("truncated", Code::InvalidArgument))
+                }
+                10 => {
+                    m.episodes[0].outcome = rng.random_range(3..i32::MAX);
+                    Some(("episodes", Code::InvalidArgument))
+                }
+                11 => {
+                    let v = rng.random_range(0..u32::MAX);
+                    let v = if v == dvnav_proto::PROTOCOL_VERSION { v + 1 } else { v };
+                    let e = s.register("b", v).unwrap_err();
+                    assert_eq!(tonic::Status::from(e).code(), Code::FailedPrecondition);
+                    *by_reason.entry("protocol_version".into()).or_default() += 1;
+                    None
+                }
+                _ => None,
+            };
+            if i % 13 == 11 {
+                continue;
+            }
+            let claimed = (m.count as u64).min(wire::MAX_BATCH_TRANSITIONS as u64);
+            match (s.ingest(m).await, expect) {
+                (Ok(ack), None) => {
+                    assert_eq!(ack, Ack { accepted: n as u32, duplicate: false });
+                    seq += 1;
+                    replay += n as u64;
+                }
+                (Err(e), Some((reason, code))) => {
+                    assert_eq!(e.reason(), reason, "case {i}: {e}");
+                    assert_eq!(tonic::Status::from(e).code(), code, "case {i}");
+                    *by_reason.entry(reason.into()).or_default() += 1;
+                    if reason != "unknown_actor" {
+                        rejected += claimed;
+                    }
+                }
+                (r, expect) => panic!("case {i}: got {r:?}, expected {expect:?}"),
+            }
+            let st = s.status();
+            assert_eq!(st.replay_size, replay, "case {i}");
+            assert_eq!(st.transitions_received, replay, "case {i}");
+        }
+        let st = s.status();
+        assert_eq!(st.rejected_by_reason, by_reason);
+        assert_eq!(st.transitions_rejected, rejected);
+        assert_eq!(st.actors[0].transitions_rejected, rejected);
+        assert!(st.actors[0].last_error.as_deref().unwrap().contains("malformed"));
+        assert_eq!(by_reason.len(), 11, "every reason was exercised: {by_reason:?}");
+        let text = crate::metrics::render_prometheus(&crate::metrics::Sample {
+            elapsed_s: 0.0,
+            status: st,
+            rooms: vec![],
+        });
+        assert!(text.contains("dvnav_requests_rejected_total{reason=\"rewards\"} "), "{text}");
+    }
+
+    /// Random and truncated bytes through the prost decoder and into ingestion: nothing
+    /// panics, and the replay buffer grows by exactly what was acknowledged as accepted.
+    #[tokio::test]
+    async fn random_bytes_through_the_decoder_and_ingestion_never_panic() {
+        use prost::Message;
+        use rand::{Rng, SeedableRng};
+        let mut cfg = small_config();
+        cfg.run.steps = 1 << 40;
+        cfg.replay.capacity = 1 << 14;
+        cfg.sac.learning_starts = 1 << 40;
+        let s = LearnerState::new(cfg.clone(), "r".into(), None, vec![]);
+        let id = s.register("a", dvnav_proto::PROTOCOL_VERSION).unwrap().actor_id;
+        let valid = batch(&cfg, 2, id, 0).encode_to_vec();
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(9);
+        let (mut decoded, mut accepted_total) = (0, 0u64);
+        for i in 0..6_000 {
+            let bytes: Vec<u8> = match i % 3 {
+                0 => (0..rng.random_range(0..300)).map(|_| rng.random()).collect(),
+                1 => valid[..rng.random_range(0..valid.len())].to_vec(),
+                _ => {
+                    let mut v = valid.clone();
+                    for _ in 0..rng.random_range(1..4) {
+                        let j = rng.random_range(0..v.len());
+                        v[j] = rng.random();
+                    }
+                    v
+                }
+            };
+            let Ok(mut msg) = pb::TransitionBatch::decode(bytes.as_slice()) else { continue };
+            decoded += 1;
+            if rng.random() {
+                msg.actor_id = id;
+            }
+            let before = s.status().replay_size;
+            let accepted = match s.ingest(msg).await {
+                Ok(ack) => ack.accepted as u64,
+                Err(e) => {
+                    let _ = tonic::Status::from(e);
+                    0
+                }
+            };
+            accepted_total += accepted;
+            assert_eq!(s.status().replay_size, before + accepted, "case {i}");
+        }
+        assert!(decoded > 1_000, "{decoded} decoded");
+        let st = s.status();
+        assert_eq!(st.transitions_received, accepted_total);
+        assert!(st.rejected_by_reason.values().sum::<u64>() > 100, "{:?}", st.rejected_by_reason);
     }
 
     #[test]

@@ -29,7 +29,12 @@ pub fn train(
     let cfg = state.config().clone();
     let mut batch = Batch::default();
     let limiter = state.limiter();
-    let evaluator = Evaluator::start(&cfg, &out_dir)?;
+    let evaluator = {
+        let state = state.clone();
+        let report: crate::evaluator::WriteFailure =
+            Box::new(move |path, e| state.record_write_failure("eval_csv", path, &e));
+        Evaluator::start_reporting(&cfg, &out_dir, Some(report))?
+    };
     loop {
         if !limiter.wait_to_update(Duration::from_millis(200)) {
             if limiter.is_closed() {
@@ -59,8 +64,17 @@ pub fn train(
             ev.submit(Snapshot { updates, env_steps, policy_version, policy });
         }
         if updates.is_multiple_of(cfg.learner.checkpoint_every_updates) {
-            let path = write_checkpoint(&state, &learner, &rng, &out_dir)?;
-            tracing::info!(updates, path = %path.display(), "checkpoint written");
+            // A failed checkpoint (disk full, unwritable directory) is logged and counted, and
+            // training goes on: the state is in memory, the previous checkpoint is intact, and
+            // the next one is tried at its usual time.
+            match write_checkpoint(&state, &learner, &rng, &out_dir) {
+                Ok(path) => tracing::info!(updates, path = %path.display(), "checkpoint written"),
+                Err(e) => state.record_write_failure(
+                    "checkpoint",
+                    &out_dir.join("checkpoints"),
+                    &format!("{e:#}"),
+                ),
+            }
         }
     }
     if let Some(ev) = evaluator {

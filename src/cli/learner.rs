@@ -88,7 +88,7 @@ pub fn run(mut args: LearnerArgs) -> anyhow::Result<ExitCode> {
                 let l = std::net::TcpListener::bind(a)
                     .map_err(|e| anyhow::anyhow!("cannot serve metrics on {a}: {e}"))?;
                 let bound = l.local_addr()?;
-                std::fs::create_dir_all(&args.out)?;
+                dvnav_learner::run::check_writable(&args.out)?;
                 let file = args.out.join("metrics.addr");
                 let tmp = file.with_extension("tmp");
                 std::fs::write(&tmp, bound.to_string())?;

@@ -451,15 +451,22 @@ fn run_one(args: TrainArgs) -> anyhow::Result<ExitCode> {
             "{} holds no complete checkpoint to resume from",
             out.display()
         );
-    } else if out.exists() && std::fs::read_dir(&out)?.next().is_some() {
+    } else if out.exists()
+        && std::fs::read_dir(&out)
+            .map_err(|e| anyhow::anyhow!("cannot use {} as --out: {e}", out.display()))?
+            .next()
+            .is_some()
+    {
         anyhow::bail!(
             "{} already holds files (another run?); choose another --out or remove it",
             out.display()
         );
     }
-    std::fs::create_dir_all(out.join("logs"))?;
+    // An unwritable --out (read-only, full, a path through a file) fails here, naming it.
+    dvnav_learner::run::check_writable(&out.join("logs"))?;
     let config_path = out.join("config.toml");
-    std::fs::write(&config_path, cfg.to_toml_string())?;
+    std::fs::write(&config_path, cfg.to_toml_string())
+        .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", config_path.display()))?;
     let exe = std::env::current_exe()?;
     let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
     let actor_threads = (cores / args.actors).max(1);
