@@ -44,6 +44,8 @@ pub struct LoopCounters {
     pub warmup_episodes: u64,
     /// Episodes written to MCAP.
     pub logged_episodes: u64,
+    /// MCAP write errors survived (disk full, unwritable directory); the actor goes on.
+    pub log_write_failures: u64,
     /// Smallest weight version that chose an action (0 if only PID acted).
     pub min_policy_version: u64,
     /// Largest weight version that chose an action.
@@ -131,6 +133,7 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
     /// Counters so far.
     pub fn counters(&self) -> LoopCounters {
         let mut c = self.counters.clone();
+        c.log_write_failures = self.logger.as_ref().map_or(0, |l| l.write_failures());
         if c.min_policy_version == u64::MAX {
             c.min_policy_version = 0;
         }
@@ -145,10 +148,10 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
     /// Finishes: flushes the adder and closes the episode log.
     pub fn finish(mut self) -> anyhow::Result<(A, LoopCounters)> {
         self.adder.flush()?;
+        let c = self.counters();
         if let Some(l) = self.logger.take() {
             l.close()?;
         }
-        let c = self.counters();
         Ok((self.adder, c))
     }
 
@@ -301,10 +304,11 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
                         env_index: i as u32,
                         ..Default::default()
                     };
-                    if let Some(l) = self.logger.as_mut() {
-                        l.end(i, summary)?;
+                    if let Some(l) = self.logger.as_mut()
+                        && l.end(i, summary)?
+                    {
+                        self.counters.logged_episodes += 1;
                     }
-                    self.counters.logged_episodes += 1;
                 }
                 self.counters.episodes += 1;
                 match outcome {
@@ -460,6 +464,70 @@ mod tests {
         .unwrap();
         let (adder, counters) = el.finish().unwrap();
         (adder.batch, counters)
+    }
+
+    /// The episode log's directory becomes unwritable mid-run: the loop goes on, the failures
+    /// are counted, and logging resumes in new files once the directory is back. As root no
+    /// permission bit stops a write, so the directory is replaced by a regular file: creating a
+    /// file "inside" it fails with ENOTDIR for root too.
+    #[test]
+    fn an_unwritable_log_directory_is_survived_and_retried() {
+        let mut cfg = Config::default();
+        cfg.actor.envs = 2;
+        cfg.env.max_steps = 20;
+        cfg.logging.every_nth_episode = 1;
+        cfg.logging.episodes_per_file = 1;
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("mcap");
+        let meta = dvnav_common::episode_log::LogMetadata::default();
+        let selector = EpisodeSelector::create(&dir, "t", meta, &cfg).unwrap().unwrap();
+        // Before the first episode begins: the directory is now a file.
+        std::fs::remove_dir_all(&dir).unwrap();
+        std::fs::write(&dir, b"not a directory").unwrap();
+        let vars = Variables {
+            version: 3,
+            policy: Arc::new(policy_bytes(&cfg)),
+            stage: 0,
+            room: cfg.curriculum.rooms[0].clone(),
+            warmup: true,
+            stop: false,
+        };
+        let mut el = EnvironmentLoop::new(
+            cfg,
+            "t".into(),
+            0,
+            1,
+            VecAdder::default(),
+            Fixed(Arc::new(vars)),
+            Some(selector),
+        )
+        .unwrap();
+        let mut n = 0;
+        el.run(|_| {
+            n += 1;
+            n <= 100
+        })
+        .unwrap();
+        let c = el.counters();
+        assert!(c.episodes >= 5, "{c:?}");
+        assert_eq!(c.logged_episodes, 0, "{c:?}");
+        assert!(c.log_write_failures >= 5, "every selected episode tried and failed: {c:?}");
+        let failures = c.log_write_failures;
+        // The directory is back: the next selected episodes are written again.
+        std::fs::remove_file(&dir).unwrap();
+        std::fs::create_dir(&dir).unwrap();
+        let mut n = 0;
+        el.run(|_| {
+            n += 1;
+            n <= 100
+        })
+        .unwrap();
+        let (adder, c) = el.finish().unwrap();
+        assert_eq!(c.log_write_failures, failures, "{c:?}");
+        assert!(c.logged_episodes >= 5, "{c:?}");
+        assert_eq!(adder.batch.len() as u64, c.env_steps);
+        let files = std::fs::read_dir(&dir).unwrap().count();
+        assert!(files >= 5, "{files} files");
     }
 
     #[test]

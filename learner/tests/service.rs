@@ -243,3 +243,46 @@ async fn a_batch_waiting_when_its_actor_dies_is_dropped_uncounted() {
     assert_eq!(s.state.status().transitions_received, 8);
     s.shutdown().await;
 }
+
+/// An oversized message (over the server's decoding limit; 1 MiB here instead of the
+/// production 256 MiB, the same tonic mechanism) is refused with tonic's status for it
+/// (OUT_OF_RANGE), counted under `stream`, never reaches the replay buffer, and the learner
+/// goes on serving the same actor.
+#[tokio::test]
+async fn an_oversized_message_is_refused_and_the_learner_keeps_serving() {
+    let mut cfg = Config::default();
+    cfg.run.steps = 1_000_000;
+    let state = Arc::new(LearnerState::new(cfg.clone(), "t".into(), None, vec![1, 2, 3]));
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let url = format!("http://{}", listener.local_addr().unwrap());
+    let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+    let task = tokio::spawn(
+        tonic::transport::Server::builder()
+            .add_service(LearnerService::server_with_limit(state.clone(), 1 << 20))
+            .serve_with_incoming_shutdown(
+                tokio_stream::wrappers::TcpListenerStream::new(listener),
+                async {
+                    let _ = rx.await;
+                },
+            ),
+    );
+    let s = Server { state, url, stop: Some(tx), task };
+    let mut c = s.client().await;
+    let id = c.register(register("a", PROTOCOL_VERSION)).await.unwrap().into_inner().actor_id;
+    // Just over 1 MiB: n transitions of 2 × obs_dim four-byte floats.
+    let n = 1 + (1 << 20) / (8 * cfg.obs_dim());
+    let huge = dvnav_common::wire::batch_to_proto(&batch(&cfg, n), id, 0);
+    let mut acks = c.transitions(tokio_stream::iter(vec![huge])).await.unwrap().into_inner();
+    let err = acks.message().await.unwrap_err();
+    assert_eq!(err.code(), Code::OutOfRange, "{err}");
+    let st = s.state.status();
+    assert_eq!((st.transitions_received, st.replay_size), (0, 0));
+    assert_eq!(st.rejected_by_reason.get("stream"), Some(&1), "{:?}", st.rejected_by_reason);
+    // The learner still serves: a normal batch on a new stream is accepted.
+    let ok = dvnav_common::wire::batch_to_proto(&batch(&cfg, 4), id, 0);
+    let mut acks = c.transitions(tokio_stream::iter(vec![ok])).await.unwrap().into_inner();
+    assert_eq!(acks.message().await.unwrap().unwrap().accepted, 4);
+    let status = c.status(StatusRequest {}).await.unwrap().into_inner();
+    assert_eq!(status.transitions_received, 4);
+    s.shutdown().await;
+}
