@@ -322,7 +322,7 @@ pub fn render_prometheus(sample: &Sample) -> String {
     metric(
         "dvnav_requests_rejected_total",
         "counter",
-        "Refused registrations and batches by reason: the offending field of a malformed batch, unknown_actor, protocol_version, unauthenticated, invalid_request, shutting_down, or stream (undecodable or oversized input).",
+        "Refused registrations and batches by reason: the offending field of a malformed batch, unknown_actor, protocol_version, unauthenticated, invalid_request, shutting_down, stream_oversized (a message over the size limit), stream_broken (a transition stream that broke: undecodable bytes, a killed actor, a cut link).",
         &rows(&s.rejected_by_reason, "reason"),
     );
     metric(

@@ -226,9 +226,16 @@ impl Learner for LearnerService {
                     // actor is told why (tonic's status, e.g. OUT_OF_RANGE for the size) before
                     // the stream ends; the learner itself carries on.
                     Err(status) => {
-                        let reason =
-                            format!("stream error: {} ({:?})", status.message(), status.code());
-                        state.count_rejection(actor, "stream", &reason);
+                        let reason = format!("stream error: {}", status.message());
+                        // Refused input (over the size limit) apart from a connection that
+                        // broke (a killed actor, a cut link).
+                        let kind = match status.code() {
+                            tonic::Code::OutOfRange | tonic::Code::ResourceExhausted => {
+                                "stream_oversized"
+                            }
+                            _ => "stream_broken",
+                        };
+                        state.count_rejection(actor, kind, &reason);
                         let _ = tx.send(Err(status)).await;
                         break (reason, false);
                     }

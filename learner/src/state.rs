@@ -141,8 +141,8 @@ pub struct StatusSnapshot {
     pub losses_finite: bool,
     /// Rates, policy lag and per-stage outcomes ([`crate::metrics`]).
     pub live: crate::metrics::LiveSnapshot,
-    /// Refused requests and batches by reason ([`LearnerError::reason`], `stream` for a
-    /// stream that broke on undecodable or oversized input).
+    /// Refused requests and batches by reason ([`LearnerError::reason`]; `stream_oversized`
+    /// for a message over the size limit, `stream_broken` for a stream that broke).
     pub rejected_by_reason: BTreeMap<String, u64>,
     /// Failed writes by output (`checkpoint`, `metrics_csv`, `eval_csv`); training goes on.
     pub write_failures: BTreeMap<String, u64>,

@@ -275,7 +275,7 @@ mod tests {
             actors: vec![actor("a", true, 5), actor("b", true, 9)],
             ..Default::default()
         };
-        assert!(w.check(0 * S, &o).is_empty());
+        assert!(w.check(Duration::ZERO, &o).is_empty());
         // b goes on; a falls silent with an error on record.
         o.actors[0].last_error = Some("malformed transition batch: field `rewards`".into());
         for t in 1..=2u64 {
@@ -350,7 +350,7 @@ mod tests {
         // Blocked because the trainer is behind is the trainer's stall, not the limiter's.
         let mut w = Watchdog::new(30 * S);
         let o = Observation { updates_owed: 2, ..o };
-        w.check(0 * S, &o);
+        w.check(Duration::ZERO, &o);
         assert_eq!(components(&w.check(30 * S, &o)), ["trainer"]);
     }
 

@@ -246,8 +246,8 @@ async fn a_batch_waiting_when_its_actor_dies_is_dropped_uncounted() {
 
 /// An oversized message (over the server's decoding limit; 1 MiB here instead of the
 /// production 256 MiB, the same tonic mechanism) is refused with tonic's status for it
-/// (OUT_OF_RANGE), counted under `stream`, never reaches the replay buffer, and the learner
-/// goes on serving the same actor.
+/// (OUT_OF_RANGE), counted under `stream_oversized`, never reaches the replay buffer, and the
+/// learner goes on serving the same actor.
 #[tokio::test]
 async fn an_oversized_message_is_refused_and_the_learner_keeps_serving() {
     let mut cfg = Config::default();
@@ -277,7 +277,12 @@ async fn an_oversized_message_is_refused_and_the_learner_keeps_serving() {
     assert_eq!(err.code(), Code::OutOfRange, "{err}");
     let st = s.state.status();
     assert_eq!((st.transitions_received, st.replay_size), (0, 0));
-    assert_eq!(st.rejected_by_reason.get("stream"), Some(&1), "{:?}", st.rejected_by_reason);
+    assert_eq!(
+        st.rejected_by_reason.get("stream_oversized"),
+        Some(&1),
+        "{:?}",
+        st.rejected_by_reason
+    );
     // The learner still serves: a normal batch on a new stream is accepted.
     let ok = dvnav_common::wire::batch_to_proto(&batch(&cfg, 4), id, 0);
     let mut acks = c.transitions(tokio_stream::iter(vec![ok])).await.unwrap().into_inner();
