@@ -136,6 +136,7 @@ mod tests {
             ("paper-medium.toml", 1.85),
             ("circle-with-cargo.toml", (0.45f64.hypot(0.15) + 0.03) / 0.2),
             ("cart-with-cargo.toml", (0.35 + 0.03) / 0.2),
+            ("rect-with-cargo.toml", (0.40f64.hypot(0.23) + 0.03) / 0.2),
         ];
         let mut files: Vec<String> = std::fs::read_dir(&dir)
             .unwrap()
