@@ -67,7 +67,7 @@ check-deploy:
 # The multi-host test (issue 8): learner and two actors in three network namespaces joined by
 # veth links, training over real addresses; the link to one actor is cut for 20 s and restored,
 # and the run must carry on (reconnect, every sent transition received once). Needs root for
-# `ip netns`; skips, exit 0, where namespaces cannot be made. ~40 s.
+# `ip netns`; skips, exit 0, where namespaces cannot be made. ~100 s.
 test-multihost:
 	$(CARGO) build --bin dvnav
 	bash scripts/multihost.sh target/debug/dvnav

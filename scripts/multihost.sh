@@ -37,7 +37,7 @@ done
 
 cat > "$OUT/config.toml" <<'TOML'
 [run]
-steps = 12000
+steps = 60000
 seed = 5
 [sac]
 batch_size = 32
@@ -80,9 +80,23 @@ sleep "$CUT_S"
 ip -n dvmh-l link set dvmh-l1 up
 echo "multihost: link restored"
 CUT_END=$(date +%s)
+if ! kill -0 "$LEARNER" 2>/dev/null; then
+    # An actor cut off while the run ended never hears "stop" and (by design) keeps trying.
+    echo "multihost: FAILED: the run ended during the cut; raise [run] steps so it outlives it"
+    exit 1
+fi
 
 wait "$LEARNER"
-for p in "${PIDS[@]:1}"; do wait "$p" || { echo "multihost: an actor failed"; tail -20 "$OUT"/actor-*.log; exit 1; }; done
+# Actors leave once told to stop; one that does not within a minute is a failure, not a hang.
+for p in "${PIDS[@]:1}"; do
+    for _ in $(seq 1 120); do kill -0 "$p" 2>/dev/null || break; sleep 0.5; done
+    if kill -0 "$p" 2>/dev/null; then
+        echo "multihost: FAILED: an actor did not stop within 60 s of the learner"
+        tail -5 "$OUT"/actor-*.log
+        exit 1
+    fi
+    wait "$p" || { echo "multihost: an actor failed"; tail -20 "$OUT"/actor-*.log; exit 1; }
+done
 
 python3 - "$OUT" "$CUT_END" <<'PY'
 import json, sys, os
