@@ -27,10 +27,14 @@ fn tune_allocator() {
 }
 
 /// Dies quietly on a closed pipe (`dvnav inspect … | head`), like other command-line tools,
-/// instead of panicking in `println!`: Rust ignores SIGPIPE by default.
+/// instead of panicking in `println!`: Rust ignores SIGPIPE by default. Only for the commands
+/// that hold no network socket ([`cli::Cli::prints_only`]): with the default disposition, a
+/// write to a connection the peer has reset kills the process (the multi-host test's learner
+/// died so when a cut link came back).
 fn restore_sigpipe() {
     #[cfg(unix)]
-    // SAFETY: resets one signal disposition before any other thread exists.
+    // SAFETY: resets one signal disposition before any other thread exists (argument parsing
+    // starts none).
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
@@ -38,8 +42,10 @@ fn restore_sigpipe() {
 
 fn main() -> std::process::ExitCode {
     tune_allocator();
-    restore_sigpipe();
     let args = cli::Cli::parse();
+    if args.prints_only() {
+        restore_sigpipe();
+    }
     cli::init_tracing(args.verbose);
     match cli::dispatch(args) {
         Ok(code) => code,

@@ -28,6 +28,23 @@ pub struct Cli {
     command: Command,
 }
 
+impl Cli {
+    /// True for commands that only read files and print (inspect, eval, plot, rooms,
+    /// transfer): they may die quietly on a closed stdout pipe. The others hold network
+    /// sockets, where a default SIGPIPE would kill a learner, an actor, the supervisor or the
+    /// controller the moment it writes to a connection its peer has reset.
+    pub fn prints_only(&self) -> bool {
+        matches!(
+            self.command,
+            Command::Inspect(_)
+                | Command::Eval(_)
+                | Command::Plot(_)
+                | Command::Rooms(_)
+                | Command::Transfer(_)
+        )
+    }
+}
+
 #[derive(Subcommand, Debug)]
 enum Command {
     /// Train on this machine: one learner plus N actor processes, supervised, with progress.
@@ -139,4 +156,27 @@ pub fn load_config(path: Option<&PathBuf>) -> anyhow::Result<dvnav_common::confi
 /// A multi-threaded tokio runtime with few workers: the heavy work runs on its own threads.
 pub fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
     Ok(tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?)
+}
+
+#[cfg(test)]
+mod sigpipe_tests {
+    use super::Cli;
+    use clap::Parser;
+
+    /// Processes that hold network connections keep SIGPIPE ignored: with the default
+    /// disposition a write to a connection reset by its peer kills the process.
+    #[test]
+    fn only_printing_commands_die_on_a_closed_pipe() {
+        let cli = |args: &[&str]| Cli::try_parse_from(args).unwrap();
+        assert!(cli(&["dvnav", "inspect", "runs/x"]).prints_only());
+        assert!(cli(&["dvnav", "rooms", "list"]).prints_only());
+        for server in [
+            vec!["dvnav", "learner"],
+            vec!["dvnav", "actor", "--learner", "http://127.0.0.1:1", "--name", "a"],
+            vec!["dvnav", "train"],
+            vec!["dvnav", "bench", "transport"],
+        ] {
+            assert!(!cli(&server).prints_only(), "{server:?}");
+        }
+    }
 }
