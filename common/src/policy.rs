@@ -14,7 +14,7 @@ use crate::nets::Actor;
 use crate::obs::{ObsLayout, ObsView, obs_dim};
 use anyhow::Context;
 use candle_core::{Device, Tensor};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// A navigation controller: observation in, velocity command out.
 pub trait NavPolicy {
@@ -44,6 +44,31 @@ pub trait NavPolicy {
     }
 }
 
+/// A policy as stored: its weights file and the configuration beside it.
+#[derive(Clone, Debug)]
+pub struct PolicyFile {
+    /// The `policy.safetensors` read.
+    pub path: PathBuf,
+    /// Its bytes.
+    pub weights: Vec<u8>,
+    /// `config.toml` beside it, else the defaults.
+    pub config: Config,
+}
+
+/// Reads a policy from a checkpoint directory, a model directory or a `policy.safetensors`
+/// file, with the `config.toml` beside it (else the defaults). One read of the weights serves
+/// building the network and anything else that needs the bytes (a version hash).
+pub fn read_policy(path: &Path) -> anyhow::Result<PolicyFile> {
+    anyhow::ensure!(path.exists(), "checkpoint {}: no such file or directory", path.display());
+    let file = if path.is_dir() { path.join("policy.safetensors") } else { path.to_path_buf() };
+    let dir = file.parent().unwrap_or(Path::new("."));
+    let cfg_file = dir.join("config.toml");
+    let config = if cfg_file.exists() { Config::load(&cfg_file)? } else { Config::default() };
+    let weights = std::fs::read(&file)
+        .with_context(|| format!("{}: cannot read the policy weights", file.display()))?;
+    Ok(PolicyFile { path: file, weights, config })
+}
+
 /// The trained meta agent acting deterministically: a = tanh(μ(s)), mapped to velocities within
 /// the meta robot's bounds (design §3). Its observations are in the layout of its run's config
 /// ([`Config::obs_layout`]): with `env.radius_input` the robot's radius follows ω.
@@ -67,15 +92,15 @@ impl MetaAgent {
     /// the file itself. The configuration is `config.toml` beside the weights if there is
     /// one, else the defaults.
     pub fn load(path: &Path) -> anyhow::Result<(Self, Config)> {
-        let file = if path.is_dir() { path.join("policy.safetensors") } else { path.to_path_buf() };
-        let dir = file.parent().unwrap_or(Path::new("."));
-        let cfg_file = dir.join("config.toml");
-        let cfg = if cfg_file.exists() { Config::load(&cfg_file)? } else { Config::default() };
-        let bytes = std::fs::read(&file)
-            .with_context(|| format!("{}: cannot read the policy weights", file.display()))?;
-        let agent = Self::from_safetensors(&bytes, &cfg)
-            .with_context(|| format!("{}: not a policy of this network", file.display()))?;
-        Ok((agent, cfg))
+        let file = read_policy(path)?;
+        Ok((Self::from_policy_file(&file)?, file.config))
+    }
+
+    /// Builds the agent from weights read by [`read_policy`].
+    pub fn from_policy_file(file: &PolicyFile) -> anyhow::Result<Self> {
+        Self::from_safetensors(&file.weights, &file.config).with_context(|| {
+            format!("{}: not a policy of the network in its config", file.path.display())
+        })
     }
 
     /// The underlying network.

@@ -74,12 +74,7 @@ impl Evaluator {
         if cfg.learner.eval_every_updates == 0 {
             return Ok(None);
         }
-        let rooms = cfg
-            .curriculum
-            .rooms
-            .iter()
-            .map(|n| Room::builtin(n))
-            .collect::<anyhow::Result<Vec<_>>>()?;
+        let rooms = Room::builtins(&cfg.curriculum.rooms)?;
         let (tx, rx) = mpsc::sync_channel::<Snapshot>(1);
         let cfg = cfg.clone();
         let out = out_dir.to_path_buf();

@@ -146,17 +146,9 @@ fn parse_radii_arg(s: &str) -> Result<Radii, String> {
 /// Reads the policy weights and the configuration of a checkpoint, and checks that they make a
 /// policy.
 fn load_checkpoint(path: &Path) -> anyhow::Result<(Vec<u8>, Config)> {
-    anyhow::ensure!(path.exists(), "checkpoint {}: no such file or directory", path.display());
-    let file = if path.is_dir() { path.join("policy.safetensors") } else { path.to_path_buf() };
-    let dir = file.parent().unwrap_or(Path::new("."));
-    let cfg_file = dir.join("config.toml");
-    let cfg = if cfg_file.exists() { Config::load(&cfg_file)? } else { Config::default() };
-    let bytes = std::fs::read(&file)
-        .map_err(|e| anyhow::anyhow!("{}: cannot read the policy weights: {e}", file.display()))?;
-    MetaAgent::from_safetensors(&bytes, &cfg).map_err(|e| {
-        anyhow::anyhow!("{}: not a policy of the network in its config: {e:#}", file.display())
-    })?;
-    Ok((bytes, cfg))
+    let file = dvnav_common::policy::read_policy(path)?;
+    MetaAgent::from_policy_file(&file)?;
+    Ok((file.weights, file.config))
 }
 
 /// The one place that decides what drives a robot of radius `radius`: the meta agent wrapped
@@ -224,12 +216,7 @@ fn load_robots(files: &[PathBuf]) -> anyhow::Result<Vec<VariedRobot>> {
 fn tasks(args: &EvalArgs, cfg: &Config) -> anyhow::Result<Vec<Task>> {
     Ok(match args.scenario {
         Scenario::Training => {
-            let rooms = cfg
-                .curriculum
-                .rooms
-                .iter()
-                .map(|n| Room::builtin(n))
-                .collect::<anyhow::Result<Vec<_>>>()?;
+            let rooms = Room::builtins(&cfg.curriculum.rooms)?;
             training_tasks(&rooms, TRAINING_ROUTE, args.episodes, args.seed)
         }
         Scenario::Gate | Scenario::Dynamic => {

@@ -96,8 +96,10 @@ pub fn load_controller(
     footprint: &Path,
     margin: Option<f64>,
 ) -> anyhow::Result<DvstController<MetaAgent>> {
-    let (agent, cfg) = MetaAgent::load(checkpoint)?;
-    let model = model_id(checkpoint)?;
+    let file = dvnav_common::policy::read_policy(checkpoint)?;
+    let agent = MetaAgent::from_policy_file(&file)?;
+    let model = model_id(&file)?;
+    let cfg = file.config;
     let text = std::fs::read_to_string(footprint).map_err(|e| {
         anyhow::anyhow!("{}: cannot read the footprint file: {e}", footprint.display())
     })?;
@@ -106,24 +108,17 @@ pub fn load_controller(
 
 /// The model's name (its directory) and version: FNV-1a 64 of its weights, so two servers (or
 /// a robot's log and a server) can tell whether they drive with the same policy.
-fn model_id(checkpoint: &Path) -> anyhow::Result<ModelId> {
-    let file = if checkpoint.is_dir() {
-        checkpoint.join("policy.safetensors")
-    } else {
-        checkpoint.to_path_buf()
-    };
-    let bytes = std::fs::read(&file)
-        .map_err(|e| anyhow::anyhow!("{}: cannot read the policy weights: {e}", file.display()))?;
+fn model_id(policy: &dvnav_common::policy::PolicyFile) -> anyhow::Result<ModelId> {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for b in bytes {
+    for &b in &policy.weights {
         h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
     }
-    let dir = file.parent().and_then(|d| d.canonicalize().ok());
+    let dir = policy.path.parent().and_then(|d| d.canonicalize().ok());
     let name = dir
         .as_deref()
         .and_then(Path::file_name)
         .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| file.display().to_string());
+        .unwrap_or_else(|| policy.path.display().to_string());
     Ok(ModelId { name, version: format!("fnv1a64:{h:016x}") })
 }
 

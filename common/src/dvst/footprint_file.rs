@@ -31,7 +31,7 @@
 
 use super::scale::{MetaRobot, covering_scale};
 use super::transfer::VelocityBounds;
-use crate::sim::room_file::{line_of, parse_toml};
+use crate::sim::room_file::{line_of, parse_toml, read_spec_file};
 use crate::sim::{Footprint, ObstacleSpec, SpecFileError, checked_parts};
 use serde::Deserialize;
 use std::path::Path;
@@ -158,13 +158,7 @@ impl VariedRobot {
 
     /// Reads a varied-robot file.
     pub fn load(path: &Path) -> Result<VariedRobot, SpecFileError> {
-        let source = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| SpecFileError {
-            source: source.clone(),
-            line: None,
-            key: String::new(),
-            reason: format!("cannot read the footprint file: {e}"),
-        })?;
+        let (text, source) = read_spec_file(path, "footprint file")?;
         VariedRobot::from_toml_str(&text, &source)
     }
 }

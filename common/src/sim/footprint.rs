@@ -20,7 +20,7 @@
 //! ```
 
 use super::Pose2;
-use super::room_file::{SpecFileError, line_of, parse_toml};
+use super::room_file::{SpecFileError, line_of, parse_toml, read_spec_file};
 use super::spec::{ObstacleSpec, Point};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -148,13 +148,7 @@ impl Footprint {
 
     /// Reads a footprint file.
     pub fn load(path: &Path) -> Result<Footprint, SpecFileError> {
-        let source = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| SpecFileError {
-            source: source.clone(),
-            line: None,
-            key: String::new(),
-            reason: format!("cannot read the footprint file: {e}"),
-        })?;
+        let (text, source) = read_spec_file(path, "footprint file")?;
         Footprint::from_toml_str(&text, &source)
     }
 }

@@ -167,6 +167,11 @@ impl Room {
         Ok(Arc::new(Room::try_new(spec)?))
     }
 
+    /// The built-in rooms `names`, in order (a curriculum's rooms).
+    pub fn builtins(names: &[String]) -> anyhow::Result<Vec<Arc<Room>>> {
+        names.iter().map(|n| Room::builtin(n)).collect()
+    }
+
     /// Names accepted by [`Room::builtin`]: the curriculum rooms easiest (largest) first, then
     /// the baseline and scenario rooms.
     pub fn builtin_names() -> Vec<String> {

@@ -529,15 +529,22 @@ fn check_geometry(ctx: &Ctx<'_>, file: &RoomFile, spec: &RoomSpec) -> Result<(),
     Ok(())
 }
 
-/// Reads and parses a room file.
-pub fn load_room_file(path: &Path) -> Result<Vec<RoomSpec>, SpecFileError> {
+/// Reads a spec file (room, footprint, …) as text, with the name its errors cite; `what`
+/// names the kind in the error when it cannot be read ("room file").
+pub(crate) fn read_spec_file(path: &Path, what: &str) -> Result<(String, String), SpecFileError> {
     let source = path.display().to_string();
     let text = std::fs::read_to_string(path).map_err(|e| SpecFileError {
         source: source.clone(),
         line: None,
         key: String::new(),
-        reason: format!("cannot read the room file: {e}"),
+        reason: format!("cannot read the {what}: {e}"),
     })?;
+    Ok((text, source))
+}
+
+/// Reads and parses a room file.
+pub fn load_room_file(path: &Path) -> Result<Vec<RoomSpec>, SpecFileError> {
+    let (text, source) = read_spec_file(path, "room file")?;
     parse_room_file(&text, &source)
 }
 
