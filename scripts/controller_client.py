@@ -3,6 +3,10 @@ and two refusals (a NaN in the scan; a call without the token).
 
     pip install grpcio grpcio-tools
     python3 scripts/controller_client.py [--addr 127.0.0.1:50061] [--token-file token]
+        [--tls-ca ca.pem [--tls-domain NAME]]
+
+With --tls-ca (a server run with --tls-cert/--tls-key; `dvnav certs` writes ca.pem) the
+channel is TLS and trusts that CA.
 
 The Python stubs are generated from proto/ into a temporary directory at start, so the script
 always speaks the protocol of this checkout.
@@ -35,12 +39,21 @@ def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--addr", default="127.0.0.1:50061")
     p.add_argument("--token-file", help="the server's --token-file")
+    p.add_argument("--tls-ca", help="connect over TLS, trusting this CA certificate (PEM)")
+    p.add_argument("--tls-domain", help="the name to verify in the server's certificate when "
+                   "--addr's host is not in it")
     p.add_argument("--cargo", default=str(REPO / "footprints/circle-with-cargo.toml"),
                    help="the footprint file sent with SetFootprint")
     a = p.parse_args()
     pb, rpc = stubs()
 
-    ctl = rpc.ControllerStub(grpc.insecure_channel(a.addr))
+    if a.tls_ca:
+        creds = grpc.ssl_channel_credentials(root_certificates=open(a.tls_ca, "rb").read())
+        options = [("grpc.ssl_target_name_override", a.tls_domain)] if a.tls_domain else []
+        channel = grpc.secure_channel(a.addr, creds, options=options)
+    else:
+        channel = grpc.insecure_channel(a.addr)
+    ctl = rpc.ControllerStub(channel)
     token = open(a.token_file).read().strip() if a.token_file else None
     auth = [("authorization", "Bearer " + token)] if token else []
 

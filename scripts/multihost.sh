@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # The multi-host test (issue 8): a learner and two actors in three Linux network namespaces
-# joined by veth links, training over real (non-loopback) addresses. Mid-run the link to
-# actor-1 is cut for CUT_S seconds and restored; the run must carry on and finish with every
-# transition an actor sent received exactly once, and actor-1 must deliver after the cut.
+# joined by veth links, training over real (non-loopback) addresses, as a run across machines
+# would: over TLS (certificates from `dvnav certs` for the learner's addresses) with a shared
+# token. Mid-run the link to actor-1 is cut for CUT_S seconds and restored; the run must carry
+# on and finish with every transition an actor sent received exactly once, and actor-1 must
+# deliver after the cut (reconnecting over TLS).
 #
 #   sudo scripts/multihost.sh [path/to/dvnav]      (needs root: ip netns)
 #
@@ -57,14 +59,20 @@ pid_episodes = 10
 every_nth_episode = 0
 TOML
 
+# The learner's certificate names both addresses it is reached at; actors trust the CA.
+"$DVNAV" certs --out "$OUT/certs" --host 10.77.1.1 --host 10.77.2.1 >/dev/null
+head -c 32 /dev/urandom | base64 >"$OUT/token"
+
 export CANDLE_NUM_THREADS=1 RAYON_NUM_THREADS=1
 ip netns exec dvmh-l "$DVNAV" learner --config "$OUT/config.toml" --out "$OUT/run" \
-    --listen 0.0.0.0:50051 >"$OUT/learner.log" 2>&1 &
+    --listen 0.0.0.0:50051 --tls-cert "$OUT/certs/server.pem" --tls-key "$OUT/certs/server.key" \
+    --token-file "$OUT/token" >"$OUT/learner.log" 2>&1 &
 LEARNER=$!
 PIDS+=("$LEARNER")
 sleep 1
 for i in 0 1; do
-    ip netns exec "dvmh-a$i" "$DVNAV" actor --learner "http://10.77.$((i + 1)).1:50051" \
+    ip netns exec "dvmh-a$i" "$DVNAV" actor --learner "https://10.77.$((i + 1)).1:50051" \
+        --tls-ca "$OUT/certs/ca.pem" --token-file "$OUT/token" \
         --name "actor-$i" --out "$OUT/run" >"$OUT/actor-$i.log" 2>&1 &
     PIDS+=("$!")
 done
@@ -110,6 +118,10 @@ for name in ("actor-0", "actor-1"):
     sent, got = s["transitions_sent"], by_name[name]["transitions_received"]
     print(f"multihost: {name}: sent {sent}, received {got}, rejected {by_name[name]['transitions_rejected']}")
     ok &= sent == got and by_name[name]["transitions_rejected"] == 0
+llog = open(os.path.join(out, "learner.log")).read()
+secured = "tls=true" in llog and "token=true" in llog
+print(f"multihost: the learner served TLS with a token: {secured}")
+ok &= secured
 log = open(os.path.join(out, "actor-1.log")).read()
 reconnected = "reconnect" in log.lower()
 print(f"multihost: actor-1 saw the cut and reconnected: {reconnected}")

@@ -71,6 +71,22 @@ fn http_get(addr: &str, path: &str) -> String {
     reply.lines().next().unwrap_or("").to_string()
 }
 
+/// Starts `dvnav train --actors 2` with `config` into `out`, its stderr to `DIR/train.log`,
+/// the learner's `/metrics` on a free port (`out/metrics.addr`), and `extra` flags.
+fn spawn_train(dir: &Path, config: &Path, out: &Path, extra: &[&str]) -> std::process::Child {
+    Command::new(env!("CARGO_BIN_EXE_dvnav"))
+        .args(["train", "--actors", "2", "--metrics-addr", "127.0.0.1:0", "--config"])
+        .arg(config)
+        .arg("--out")
+        .arg(out)
+        .args(extra)
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(dir.join("train.log")).unwrap())
+        .spawn()
+        .unwrap()
+}
+
 #[test]
 fn a_killed_actor_is_restarted_and_nothing_is_counted_twice() {
     let dir = tempfile::tempdir().unwrap();
@@ -78,18 +94,7 @@ fn a_killed_actor_is_restarted_and_nothing_is_counted_twice() {
     std::fs::write(&config, CONFIG).unwrap();
     let out = dir.path().join("run");
     let started = Instant::now();
-    let mut train = Command::new(env!("CARGO_BIN_EXE_dvnav"))
-        .args(["train", "--actors", "2", "--progress-every-s", "5", "--metrics-addr"])
-        .arg("127.0.0.1:0")
-        .arg("--config")
-        .arg(&config)
-        .arg("--out")
-        .arg(&out)
-        .env("RUST_LOG", "info")
-        .stdout(Stdio::null())
-        .stderr(std::fs::File::create(dir.path().join("train.log")).unwrap())
-        .spawn()
-        .unwrap();
+    let mut train = spawn_train(dir.path(), &config, &out, &["--progress-every-s", "5"]);
     let log = |name: &str| std::fs::read_to_string(out.join("logs").join(name)).unwrap_or_default();
     let train_log = || std::fs::read_to_string(dir.path().join("train.log")).unwrap_or_default();
 
@@ -260,4 +265,187 @@ fn learner_under_a_supervisor(out: &Path) -> String {
     let status = learner.wait().unwrap();
     assert!(status.success(), "{}", log());
     log()
+}
+
+/// One HTTP/1.1 GET; returns the whole reply (empty when the server is gone).
+fn http_get_body(addr: &str, path: &str) -> String {
+    let get = || -> std::io::Result<String> {
+        let mut sock = std::net::TcpStream::connect(addr)?;
+        write!(sock, "GET {path} HTTP/1.1\r\nHost: x\r\n\r\n")?;
+        let mut reply = String::new();
+        sock.read_to_string(&mut reply)?;
+        Ok(reply)
+    };
+    get().unwrap_or_default()
+}
+
+/// Hangs are named: an actor process frozen with SIGSTOP keeps its connection open and sends
+/// nothing. The learner's watchdog names it, with what it is not doing, in `/readyz` and its
+/// log within one heartbeat interval (`learner.heartbeat_s`, 5 s here) of the freeze, says it
+/// moves again after SIGCONT, and the run ends with every transition sent received.
+#[test]
+fn a_frozen_actor_is_named_within_one_heartbeat() {
+    const HEARTBEAT_S: f64 = 5.0;
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("hang.toml");
+    // Ingestion never waits for the trainer here, so nothing excuses the silence.
+    let cfg = CONFIG
+        .replace("steps = 4000", "steps = 60000")
+        .replace("max_steps_ahead = 1000", "max_steps_ahead = 100000")
+        .replace("[learner]", &format!("[learner]\nheartbeat_s = {HEARTBEAT_S}"));
+    std::fs::write(&config, cfg).unwrap();
+    let out = dir.path().join("run");
+    let mut train = spawn_train(dir.path(), &config, &out, &["--progress-every-s", "5"]);
+    let learner_log =
+        || std::fs::read_to_string(out.join("logs").join("learner.log")).unwrap_or_default();
+    let pids = wait_for("pids.json", Duration::from_secs(60), || read_json(&out.join("pids.json")));
+    let frozen = &pids["actors"][1];
+    assert_eq!(frozen["process"], "actor-1", "{pids}");
+    let frozen_pid = frozen["pid"].as_i64().unwrap() as i32;
+    let addr = std::fs::read_to_string(out.join("learner.addr")).unwrap();
+    let metrics = std::fs::read_to_string(out.join("metrics.addr")).unwrap();
+    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+    let mut client =
+        rt.block_on(LearnerClient::connect(format!("http://{}", addr.trim()))).unwrap();
+    let mut status = || rt.block_on(client.status(StatusRequest {})).unwrap().into_inner();
+    let batches_of = |s: &dvnav_proto::StatusReply, name: &str| {
+        s.actors.iter().find(|a| a.actor_name == name).map_or(0, |a| a.batches)
+    };
+    wait_for("actor-1 streaming", Duration::from_secs(60), || {
+        (batches_of(&status(), "actor-1") >= 3).then_some(())
+    });
+    let readyz = || http_get_body(metrics.trim(), "/readyz");
+    assert!(!readyz().contains("stalled:"), "a healthy run names nothing: {}", readyz());
+
+    // SAFETY: kill(2) on a process id read from the run's pids.json, a child of our child.
+    assert_eq!(unsafe { libc::kill(frozen_pid, libc::SIGSTOP) }, 0);
+    let frozen_at = Instant::now();
+    let named = loop {
+        let r = readyz();
+        if r.contains("stalled: actor:actor-1") {
+            break (frozen_at.elapsed(), r);
+        }
+        assert!(train.try_wait().unwrap().is_none(), "the run ended: {}", learner_log());
+        assert!(
+            frozen_at.elapsed() < Duration::from_secs(20),
+            "actor-1 not named in 20 s; /readyz: {r}\nlearner log:\n{}",
+            learner_log()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let after_freeze = status();
+    // SAFETY: as above.
+    assert_eq!(unsafe { libc::kill(frozen_pid, libc::SIGCONT) }, 0);
+    eprintln!(
+        "faults: actor-1 frozen with SIGSTOP; named by the watchdog after {:.2} s (heartbeat \
+         {HEARTBEAT_S} s)",
+        named.0.as_secs_f64()
+    );
+    assert!(
+        named.0 <= Duration::from_secs_f64(HEARTBEAT_S),
+        "named after {:?}, more than one heartbeat: {}",
+        named.0,
+        named.1
+    );
+    assert!(named.1.starts_with("HTTP/1.1 200 OK"), "a stalled actor leaves it ready: {}", named.1);
+    assert!(named.1.contains("stream open but no batch arrives"), "{}", named.1);
+    assert!(
+        !named.1.contains("stalled: actor:actor-0"),
+        "the live actor is not named: {}",
+        named.1
+    );
+    assert!(
+        after_freeze.transitions_received < 50000,
+        "the run went on meanwhile: {after_freeze:?}"
+    );
+    let moving = "watchdog: component moving again component=actor:actor-1";
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !learner_log().contains(moving) {
+        assert!(
+            Instant::now() < deadline,
+            "actor-1 not moving again in 20 s; /readyz: {}\nlearner log:\n{}",
+            readyz(),
+            learner_log()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let log = learner_log();
+    assert!(
+        log.contains("watchdog: component stalled component=actor:actor-1"),
+        "the log names it too: {log}"
+    );
+
+    let deadline = Instant::now() + Duration::from_secs(120);
+    let exit = loop {
+        if let Some(st) = train.try_wait().unwrap() {
+            break st;
+        }
+        assert!(Instant::now() < deadline, "dvnav train did not finish");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(exit.success(), "{}", learner_log());
+    let s = read_json(&out.join("run_summary.json")).unwrap();
+    assert_eq!(s["transitions_accounted"], true, "{s}");
+    assert_eq!(s["transitions_sent"], s["transitions_received"], "{s}");
+}
+
+/// The restart policy: with `--max-actor-restarts 2`, an actor killed three times is restarted
+/// after 1 s, then after 2 s (the backoff doubles while its processes keep dying young), and
+/// the third time not at all, with the reason in the run summary; the run goes on with the
+/// other actor to its budget, and `dvnav train` exits non-zero: it lost an actor for good.
+#[test]
+fn restarts_back_off_and_stop_at_the_limit() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("restarts.toml");
+    std::fs::write(
+        &config,
+        CONFIG
+            .replace("steps = 4000", "steps = 60000")
+            .replace("max_steps_ahead = 1000", "max_steps_ahead = 100000"),
+    )
+    .unwrap();
+    let out = dir.path().join("run");
+    let mut train = spawn_train(dir.path(), &config, &out, &["--max-actor-restarts", "2"]);
+    let train_log = || std::fs::read_to_string(dir.path().join("train.log")).unwrap_or_default();
+    // Kills actor-0's current process once it runs as `process`, returns its pid.
+    let kill = |process: &str| {
+        let pid = wait_for(process, Duration::from_secs(60), || {
+            let pids = read_json(&out.join("pids.json"))?;
+            let a = &pids["actors"][0];
+            (a["process"] == process).then(|| a["pid"].as_i64().unwrap() as i32)
+        });
+        // SAFETY: kill(2) on a process id read from the run's pids.json, a child of our child.
+        assert_eq!(unsafe { libc::kill(pid, libc::SIGKILL) }, 0);
+    };
+    for process in ["actor-0", "actor-0-r1", "actor-0-r2"] {
+        kill(process);
+    }
+    let deadline = Instant::now() + Duration::from_secs(120);
+    let exit = loop {
+        if let Some(st) = train.try_wait().unwrap() {
+            break st;
+        }
+        assert!(Instant::now() < deadline, "dvnav train did not finish: {}", train_log());
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let log = train_log();
+    assert_eq!(exit.code(), Some(1), "{log}");
+    assert!(log.contains("not restarting it: --max-actor-restarts 2 reached"), "{log}");
+
+    let s = read_json(&out.join("run_summary.json")).unwrap();
+    assert_eq!(s["clean_shutdown"], false, "{s}");
+    assert!(s["transitions_received"].as_u64().unwrap() >= 60000, "the budget was reached: {s}");
+    assert_eq!(s["actor_restarts"], 2, "{s}");
+    let f = s["actor_failures"].as_array().unwrap();
+    assert_eq!(f.len(), 3, "{s}");
+    let delay = |i: usize| f[i]["restart_delay_s"].as_f64().unwrap();
+    assert_eq!(
+        (f[0]["restarted_as"].as_str(), f[1]["restarted_as"].as_str()),
+        (Some("actor-0-r1"), Some("actor-0-r2"))
+    );
+    assert!((1.0..1.9).contains(&delay(0)), "first backoff 1 s: {}", delay(0));
+    assert!((2.0..2.9).contains(&delay(1)), "second backoff 2 s: {}", delay(1));
+    assert!(f[2]["restarted_as"].is_null(), "{s}");
+    assert_eq!(f[2]["not_restarted"], "--max-actor-restarts 2 reached", "{s}");
+    assert_eq!(s["transitions_accounted"], true, "{s}");
 }

@@ -2,7 +2,8 @@
 //! the shipped meta agent (`models/meta-r0.2`) on port 0, called over gRPC. Commands are those
 //! of the meta agent through DVST, bit for bit; malformed requests get INVALID_ARGUMENT naming
 //! the field; a new footprint changes μ; with a token, calls without it are UNAUTHENTICATED;
-//! SIGTERM stops the server cleanly.
+//! over TLS, only clients that trust the server's CA are answered; SIGTERM stops the server
+//! cleanly.
 
 use dvnav_common::dvst::{Dvst, VariedRobot};
 use dvnav_common::policy::{MetaAgent, NavPolicy};
@@ -269,4 +270,63 @@ async fn a_hung_client_does_not_keep_the_server_from_stopping() {
     assert!(t.elapsed() < Duration::from_secs(10), "took {:?}: {log}", t.elapsed());
     assert!(log.contains("connections still open at shutdown"), "{log}");
     drop(client);
+}
+
+/// With `--tls-cert` and `--tls-key` (from `dvnav certs` for 127.0.0.1, an IP address SAN), a
+/// client that trusts the CA is answered; a plaintext client and one that trusts another CA
+/// are not.
+#[tokio::test]
+async fn over_tls_a_client_with_the_ca_is_answered_and_a_plaintext_one_is_not() {
+    use dvnav_common::tls::{ClientTlsFiles, endpoint};
+    let dir = tempfile::tempdir().unwrap();
+    for name in ["certs", "other"] {
+        let out = Command::new(env!("CARGO_BIN_EXE_dvnav"))
+            .args(["certs", "--host", "127.0.0.1", "--out"])
+            .arg(dir.path().join(name))
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    }
+    let file = |d: &str, f: &str| dir.path().join(d).join(f).to_str().unwrap().to_string();
+    let (cert, key) = (file("certs", "server.pem"), file("certs", "server.key"));
+    let server = Server::start(
+        dir.path(),
+        "footprints/small-0.15.toml",
+        &["--tls-cert", &cert, "--tls-key", &key],
+    );
+    let https = server.url.replacen("http://", "https://", 1);
+    let trusting = |ca: String| ClientTlsFiles { ca: Some(ca.into()), ..Default::default() };
+
+    let tls = trusting(file("certs", "ca.pem")).load().unwrap();
+    let channel = endpoint(&https, tls.as_ref()).unwrap().connect().await.unwrap();
+    let mut client = ControllerClient::new(channel);
+    let info = client.info(InfoRequest {}).await.unwrap().into_inner();
+    assert_eq!((info.scan_beams, info.footprint.as_str()), (540, "small r=0.15"));
+    let got = client.act(request(0)).await.unwrap().into_inner();
+    assert!(got.v.abs() <= 0.5 && got.footprint_version == 1, "{got:?}");
+
+    // Plaintext: the connection may open, but no call is answered.
+    if let Ok(mut plain) = ControllerClient::connect(server.url.clone()).await {
+        let e = plain.info(InfoRequest {}).await.expect_err("a plaintext call is answered");
+        assert_ne!(e.code(), Code::Ok);
+        let e = plain.act(request(1)).await.expect_err("a plaintext call is answered");
+        assert_ne!(e.code(), Code::Ok);
+    }
+    // Another CA: the handshake fails.
+    let other = trusting(file("other", "ca.pem")).load().unwrap();
+    let e = endpoint(&https, other.as_ref()).unwrap().connect().await.expect_err("another CA");
+    let mut text = e.to_string();
+    let mut source = std::error::Error::source(&e);
+    while let Some(inner) = source {
+        text += &format!(": {inner}");
+        source = inner.source();
+    }
+    assert!(text.contains("invalid peer certificate: UnknownIssuer"), "{text}");
+    // The trusted client is still answered.
+    assert_eq!(client.info(InfoRequest {}).await.unwrap().into_inner().scan_beams, 540);
+
+    drop(client);
+    let (status, log) = server.stop().await;
+    assert!(status.success(), "{status}: {log}");
+    assert!(log.contains("tls=true") && log.contains("commands=1"), "{log}");
 }

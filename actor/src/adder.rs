@@ -2,9 +2,15 @@
 //! hands full batches to the transition stream through a bounded channel. When the learner
 //! pushes back, the channel fills and `add` blocks: the environment loop slows down instead of
 //! buffering without limit.
+//!
+//! A batch is also handed over once its first transition is `max_delay` old (a quarter
+//! of the heartbeat interval), even part full: a slow actor still shows the learner it is alive and
+//! moving, so the watchdog can name one that stopped within a heartbeat (and the learner sees
+//! its transitions sooner).
 
 use dvnav_common::core::{Adder, EpisodeStats, TransitionBatch};
 use dvnav_common::obs::ACTION_DIM;
+use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
 
 /// Batches transitions for the gRPC stream.
@@ -12,19 +18,36 @@ pub struct BatchingAdder {
     batch: TransitionBatch,
     batch_size: usize,
     tx: mpsc::Sender<TransitionBatch>,
+    max_delay: Duration,
+    /// When the batch being filled got its first transition or episode.
+    opened: Option<Instant>,
     /// Transitions handed to the stream.
     pub handed_over: u64,
 }
 
 impl BatchingAdder {
-    /// Sends full batches of `batch_size` transitions into `tx`.
-    pub fn new(obs_dim: usize, batch_size: usize, tx: mpsc::Sender<TransitionBatch>) -> Self {
+    /// Sends batches of `batch_size` transitions into `tx`, or fewer once the oldest has waited
+    /// `max_delay`.
+    pub fn new(
+        obs_dim: usize,
+        batch_size: usize,
+        max_delay: Duration,
+        tx: mpsc::Sender<TransitionBatch>,
+    ) -> Self {
         Self {
             batch: TransitionBatch::with_capacity(obs_dim, batch_size),
             batch_size,
             tx,
+            max_delay,
+            opened: None,
             handed_over: 0,
         }
+    }
+
+    /// Notes the batch's first content, and whether it is due: full, or open for `max_delay`.
+    fn due(&mut self) -> bool {
+        let opened = *self.opened.get_or_insert_with(Instant::now);
+        self.batch.len() >= self.batch_size || opened.elapsed() >= self.max_delay
     }
 
     fn send(&mut self) -> anyhow::Result<()> {
@@ -33,6 +56,7 @@ impl BatchingAdder {
         }
         let fresh = TransitionBatch::with_capacity(self.batch.obs_dim, self.batch_size);
         let full = std::mem::replace(&mut self.batch, fresh);
+        self.opened = None;
         let n = full.len() as u64;
         self.tx
             .blocking_send(full)
@@ -54,7 +78,7 @@ impl Adder for BatchingAdder {
         policy_version: u64,
     ) -> anyhow::Result<()> {
         self.batch.push(obs, action, reward, next_obs, terminated, truncated, policy_version);
-        if self.batch.len() >= self.batch_size {
+        if self.due() {
             self.send()?;
         }
         Ok(())
@@ -62,10 +86,39 @@ impl Adder for BatchingAdder {
 
     fn add_episode(&mut self, stats: EpisodeStats) -> anyhow::Result<()> {
         self.batch.episodes.push(stats);
+        self.opened.get_or_insert_with(Instant::now);
         Ok(())
     }
 
     fn flush(&mut self) -> anyhow::Result<()> {
         self.send()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn add(adder: &mut BatchingAdder, n: usize) {
+        let obs = vec![0.5; 4];
+        for _ in 0..n {
+            adder.add(&obs, [0.1, 0.2], 1.0, &obs, false, false, 1).unwrap();
+        }
+    }
+
+    #[test]
+    fn full_batches_go_at_once_and_a_part_batch_goes_when_its_first_transition_is_old() {
+        let (tx, mut rx) = mpsc::channel(16);
+        let mut adder = BatchingAdder::new(4, 8, Duration::from_millis(200), tx);
+        add(&mut adder, 8 + 3);
+        assert_eq!(rx.try_recv().unwrap().len(), 8);
+        assert!(rx.try_recv().is_err(), "3 fresh transitions wait for more");
+        std::thread::sleep(Duration::from_millis(250));
+        add(&mut adder, 1);
+        assert_eq!(rx.try_recv().unwrap().len(), 4, "the old part batch goes with the next add");
+        // The clock restarts with the next batch's first transition.
+        add(&mut adder, 1);
+        assert!(rx.try_recv().is_err());
+        assert_eq!(adder.handed_over, 12);
     }
 }

@@ -24,7 +24,7 @@ use tokio::sync::{mpsc, watch};
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::metadata::{Ascii, MetadataValue};
 use tonic::service::interceptor::InterceptedService;
-use tonic::transport::{Channel, Endpoint};
+use tonic::transport::{Channel, ClientTlsConfig, Endpoint};
 
 /// Longest wait between two reconnection attempts.
 pub const MAX_BACKOFF: Duration = Duration::from_secs(5);
@@ -60,9 +60,11 @@ impl tonic::service::Interceptor for AuthInterceptor {
 /// The learner client type actors use.
 pub type Client = LearnerClient<InterceptedService<Channel, AuthInterceptor>>;
 
-fn endpoint(url: &str) -> anyhow::Result<Endpoint> {
-    Ok(Endpoint::from_shared(url.to_string())
-        .map_err(|e| anyhow::anyhow!("bad learner address {url:?}: {e}"))?
+/// The learner's endpoint; over TLS with `tls`, or for an `https://` URL (see
+/// [`dvnav_common::tls::endpoint`]).
+fn endpoint(url: &str, tls: Option<&ClientTlsConfig>) -> anyhow::Result<Endpoint> {
+    Ok(dvnav_common::tls::endpoint(url, tls)
+        .map_err(|e| anyhow::anyhow!("learner address {url:?}: {e:#}"))?
         .connect_timeout(Duration::from_secs(5))
         // Windows sized for ~0.5 MB batches and ~1 MB weights, as on the learner's side.
         .initial_stream_window_size(4 << 20)
@@ -78,22 +80,50 @@ fn make_client(channel: Channel, token: Option<&str>) -> anyhow::Result<Client> 
         .max_encoding_message_size(MAX_MESSAGE_BYTES))
 }
 
-/// Connects to the learner, retrying with exponential backoff until `timeout`.
-pub async fn connect(url: &str, token: Option<&str>, timeout: Duration) -> anyhow::Result<Client> {
-    let endpoint = endpoint(url)?;
+/// Connects to the learner (over TLS with `tls`), retrying with exponential backoff until
+/// `timeout`.
+pub async fn connect(
+    url: &str,
+    tls: Option<&ClientTlsConfig>,
+    token: Option<&str>,
+    timeout: Duration,
+) -> anyhow::Result<Client> {
+    let endpoint = endpoint(url, tls)?;
     let deadline = Instant::now() + timeout;
     let mut backoff = Duration::from_millis(100);
     loop {
         match endpoint.connect().await {
             Ok(c) => return make_client(c, token),
             Err(e) if Instant::now() + backoff < deadline => {
-                tracing::debug!(%url, error = %e, ?backoff, "learner not reachable yet; retrying");
+                let error = error_chain(&e);
+                tracing::debug!(%url, %error, ?backoff, "learner not reachable yet; retrying");
                 tokio::time::sleep(backoff).await;
                 backoff = (backoff * 2).min(MAX_BACKOFF);
             }
-            Err(e) => anyhow::bail!("cannot reach the learner at {url} within {timeout:?}: {e}"),
+            Err(e) => anyhow::bail!(
+                "cannot reach the learner at {} within {timeout:?}: {}",
+                endpoint.uri(),
+                error_chain(&e)
+            ),
         }
     }
+}
+
+/// An error with its sources: tonic's transport errors say only "transport error" at the top;
+/// a refused TLS handshake (unknown CA, wrong name) is further down.
+fn error_chain(e: &(dyn std::error::Error + 'static)) -> String {
+    let mut s = e.to_string();
+    let mut source = e.source();
+    while let Some(inner) = source {
+        // Some errors' messages already hold their source's.
+        let text = inner.to_string();
+        if !s.contains(&text) {
+            s.push_str(": ");
+            s.push_str(&text);
+        }
+        source = inner.source();
+    }
+    s
 }
 
 /// What registration gives an actor.
@@ -111,8 +141,9 @@ pub struct Registered {
     pub next_sequence: u64,
 }
 
-/// Registers `name` with the learner.
-pub async fn register(client: &mut Client, name: &str) -> anyhow::Result<Registered> {
+/// Registers `name` with the learner; `tls`: whether the connection is TLS (for the hint a
+/// plaintext client of a TLS learner needs).
+pub async fn register(client: &mut Client, name: &str, tls: bool) -> anyhow::Result<Registered> {
     let reply = client
         .register(pb::RegisterRequest {
             actor_name: name.to_string(),
@@ -120,7 +151,17 @@ pub async fn register(client: &mut Client, name: &str) -> anyhow::Result<Registe
             num_envs: 0,
         })
         .await
-        .map_err(|s| anyhow::anyhow!("registration refused ({:?}): {}", s.code(), s.message()))?
+        .map_err(|s| {
+            // A plaintext client of a server that speaks only TLS sees its connection fail
+            // under the call, with one of these codes, never one from the learner's service.
+            use tonic::Code::{Cancelled, Internal, Unknown};
+            let hint = if !tls && matches!(s.code(), Cancelled | Internal | Unknown) {
+                " (a learner that serves TLS drops plaintext connections: connect with --tls-ca)"
+            } else {
+                ""
+            };
+            anyhow::anyhow!("registration refused ({:?}): {}{hint}", s.code(), s.message())
+        })?
         .into_inner();
     let config = Config::from_toml_str(&reply.run_config_toml)
         .map_err(|e| anyhow::anyhow!("the learner sent an unusable config: {e}"))?;
@@ -322,6 +363,8 @@ pub struct LinkOptions {
     pub name: String,
     /// Shared token.
     pub token: Option<String>,
+    /// TLS for the connection (`--tls-ca`), kept for every reconnection.
+    pub tls: Option<ClientTlsConfig>,
 }
 
 /// Runs the link until the adder closes `batches` and the learner has acknowledged everything,
@@ -367,10 +410,17 @@ pub async fn run_link(
             }
             tokio::time::sleep(backoff).await;
             backoff = (backoff * 2).min(MAX_BACKOFF);
-            let Ok(ep) = endpoint(&opts.url) else { break None };
-            let Ok(channel) = ep.connect().await else { continue };
+            let Ok(ep) = endpoint(&opts.url, opts.tls.as_ref()) else { break None };
+            let channel = match ep.connect().await {
+                Ok(c) => c,
+                Err(e) => {
+                    tracing::debug!(error = %error_chain(&e), "learner not reachable; retrying");
+                    continue;
+                }
+            };
             let Ok(mut c) = make_client(channel, opts.token.as_deref()) else { break None };
-            match register(&mut c, &opts.name).await {
+            let tls = opts.tls.is_some() || opts.url.starts_with("https://");
+            match register(&mut c, &opts.name, tls).await {
                 Ok(reg) => break Some((c, reg)),
                 Err(e) => tracing::debug!(error = %e, "re-registration failed; retrying"),
             }

@@ -27,6 +27,9 @@ pub struct ActorOptions {
     pub out_dir: PathBuf,
     /// Shared token, if the learner requires one.
     pub token: Option<String>,
+    /// TLS for the learner connection (`--tls-ca`; see [`dvnav_common::tls`]): with it an
+    /// `http://` URL is dialled as `https://`.
+    pub tls: Option<tonic::transport::ClientTlsConfig>,
     /// How long to keep trying to reach the learner at start-up.
     pub connect_timeout: Duration,
 }
@@ -67,8 +70,10 @@ pub async fn run(
 ) -> anyhow::Result<ActorSummary> {
     let started = Instant::now();
     let mut client =
-        connect(&opts.learner_url, opts.token.as_deref(), opts.connect_timeout).await?;
-    let reg = register(&mut client, &opts.name).await?;
+        connect(&opts.learner_url, opts.tls.as_ref(), opts.token.as_deref(), opts.connect_timeout)
+            .await?;
+    let tls = opts.tls.is_some() || opts.learner_url.starts_with("https://");
+    let reg = register(&mut client, &opts.name, tls).await?;
     let cfg = reg.config.clone();
     let actor_id = reg.actor_id;
     tracing::info!(name = %opts.name, actor_id, run = %reg.run_id, "registered with the learner");
@@ -90,6 +95,7 @@ pub async fn run(
             url: opts.learner_url.clone(),
             name: opts.name.clone(),
             token: opts.token.clone(),
+            tls: opts.tls.clone(),
         },
         client,
         reg.clone(),
@@ -117,7 +123,11 @@ pub async fn run(
     let environment = async move {
         variables.wait_first().await?;
         tokio::task::spawn_blocking(move || -> anyhow::Result<(LoopCounters, String)> {
-            let adder = BatchingAdder::new(cfg.obs_dim(), cfg.actor.batch_transitions, batch_tx);
+            // A quarter heartbeat: the learner's watchdog sees a live actor move well inside the
+            // 0.6 heartbeat that makes a stall (learner/src/watchdog.rs).
+            let max_delay = Duration::from_secs_f64(cfg.learner.heartbeat_s / 4.0);
+            let adder =
+                BatchingAdder::new(cfg.obs_dim(), cfg.actor.batch_transitions, max_delay, batch_tx);
             let mut el = EnvironmentLoop::new(
                 cfg,
                 name,

@@ -303,6 +303,15 @@ pub struct LearnerConfig {
     /// Random episodes per room in each evaluation during training (0: the routes only).
     /// The same seeded starts and goals every time, so the rows of `eval.csv` compare.
     pub eval_episodes: usize,
+    /// The heartbeat interval (s). Actors deliver what they have at least every quarter
+    /// interval, even a part batch, and the learner's watchdog names a component that made
+    /// no progress for a whole interval (ingest, trainer, rate limiter, each actor) within one
+    /// interval of its last progress.
+    pub heartbeat_s: f64,
+    /// `GET /healthz` answers 503 once the trainer or the rate limiter has been stalled this
+    /// long (s), so a supervisor restarts a wedged learner (which resumes from its newest
+    /// checkpoint). 0: never.
+    pub liveness_stall_s: f64,
 }
 
 impl Default for LearnerConfig {
@@ -314,6 +323,8 @@ impl Default for LearnerConfig {
             threads: 1,
             eval_every_updates: 2_000,
             eval_episodes: 10,
+            heartbeat_s: 10.0,
+            liveness_stall_s: 300.0,
         }
     }
 }
@@ -593,6 +604,14 @@ impl Config {
         if le.checkpoint_every_updates == 0 {
             return Err(bad("learner.checkpoint_every_updates", "must be at least 1"));
         }
+        // Below 0.1 s the watchdog's sampling (a fifth of it) would cost more than it tells.
+        if !(le.heartbeat_s.is_finite() && le.heartbeat_s >= 0.1) {
+            return Err(bad(
+                "learner.heartbeat_s",
+                format!("must be a finite number of seconds ≥ 0.1, got {}", le.heartbeat_s),
+            ));
+        }
+        non_negative("learner.liveness_stall_s", le.liveness_stall_s)?;
         let a = &self.actor;
         if a.envs == 0 {
             return Err(bad("actor.envs", "must be at least 1"));

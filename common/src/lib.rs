@@ -24,6 +24,8 @@
 //! - [`eval`]: policy evaluation: episodes, the evaluation-route protocol and the paper's
 //!   score S, per-room rates, the gate and dynamic scenarios (`dvnav eval`, and the learner's
 //!   evaluation during training).
+//! - [`tls`]: optional TLS (rustls) for the gRPC services across machines: certificate and
+//!   key files checked at start-up, tonic's server and client configs.
 //!
 //! `common` never depends on the actor or the learner crates.
 //!
@@ -34,6 +36,7 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod alloc_count;
 pub mod config;
 pub mod control;
 pub mod core;
@@ -45,5 +48,6 @@ pub mod nets;
 pub mod obs;
 pub mod policy;
 pub mod sim;
+pub mod tls;
 pub mod weights;
 pub mod wire;

@@ -27,6 +27,7 @@ pub mod curriculum;
 pub mod device;
 pub mod evaluator;
 pub mod metrics;
+pub mod process_memory;
 pub mod rate_limiter;
 pub mod replay;
 pub mod run;

@@ -197,6 +197,8 @@ pub struct Sample {
     pub status: StatusSnapshot,
     /// Room name of each curriculum stage, for labels.
     pub rooms: Vec<String>,
+    /// The learner process's memory.
+    pub memory: crate::process_memory::ProcessMemory,
 }
 
 /// Takes [`Sample`]s; keeps the short history that rates are computed over.
@@ -244,6 +246,7 @@ impl Sampler {
             elapsed_s: t,
             status: state.status(),
             rooms: state.config().curriculum.rooms.clone(),
+            memory: crate::process_memory::ProcessMemory::read(),
         };
         state.live().set_text(render_prometheus(&sample));
         sample
@@ -269,6 +272,7 @@ fn num(v: f64) -> String {
 /// Renders a sample in the Prometheus text exposition format (version 0.0.4).
 pub fn render_prometheus(sample: &Sample) -> String {
     let s = &sample.status;
+    let s_mem = &sample.memory;
     let live = &s.live;
     let mut out = String::with_capacity(4096);
     let mut metric = |name: &str, kind: &str, help: &str, rows: &[(String, f64)]| {
@@ -346,9 +350,22 @@ pub fn render_prometheus(sample: &Sample) -> String {
     metric(
         "dvnav_stalled",
         "gauge",
-        "1 while the watchdog finds the component stuck (no progress for 30 s; see the learner log for its last error).",
+        "1 while the watchdog finds the component stuck (no progress for 0.6 of learner.heartbeat_s; /readyz and the learner log say what and its last error).",
         &stalled,
     );
+    let memory = [
+        ("dvnav_process_resident_bytes", "The learner's resident memory.", s_mem.resident_bytes),
+        (
+            "dvnav_heap_in_use_bytes",
+            "Bytes allocated and not freed: grows only with a leak, unlike resident memory, which keeps the allocator's high-water mark.",
+            s_mem.heap_in_use_bytes,
+        ),
+    ];
+    for (name, help, v) in memory {
+        if let Some(v) = v {
+            metric(name, "gauge", help, &one(v as f64));
+        }
+    }
     metric(
         "dvnav_replay_size",
         "gauge",
@@ -558,6 +575,7 @@ pub async fn record(
     let mut sampler = Sampler::new();
     let mut ticks = tokio::time::interval(SAMPLE_EVERY);
     ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut released = tokio::time::Instant::now();
     tokio::pin!(stop);
     loop {
         tokio::select! {
@@ -565,6 +583,11 @@ pub async fn record(
                 let sample = sampler.sample(&state);
                 if let Some(c) = csv.as_mut() {
                     c.append(&sample, &state);
+                }
+                if released.elapsed() >= crate::process_memory::RELEASE_EVERY {
+                    released = tokio::time::Instant::now();
+                    // Off the runtime's threads: it walks every arena.
+                    tokio::task::spawn_blocking(crate::process_memory::release_free_memory);
                 }
             }
             _ = &mut stop => break,
@@ -636,8 +659,7 @@ async fn respond(mut sock: TcpStream, state: &LearnerState) -> std::io::Result<(
     const PROM: &str = "text/plain; version=0.0.4; charset=utf-8";
     const TEXT: &str = "text/plain; charset=utf-8";
     let head_only = method == "HEAD";
-    let probe =
-        |status: &'static str, body: &'static str| (status, if head_only { "" } else { body });
+    let probe = |body: &str| if head_only { String::new() } else { body.to_string() };
     match (method, path) {
         ("GET", "/metrics") => {
             write_response(&mut sock, "200 OK", PROM, &state.live().text()).await
@@ -649,20 +671,36 @@ async fn respond(mut sock: TcpStream, state: &LearnerState) -> std::io::Result<(
             write_response(&mut sock, "200 OK", TEXT, body).await
         }
         // Liveness: this answer comes from the learner's runtime, so a process that answers
-        // is alive and not wedged in its I/O.
+        // is alive and not wedged in its I/O; a trainer stalled past
+        // `learner.liveness_stall_s` makes it 503 so a supervisor restarts (and resumes) it.
         ("GET" | "HEAD", "/healthz") => {
-            let (status, body) = probe("200 OK", "ok\n");
-            write_response(&mut sock, status, TEXT, body).await
-        }
-        ("GET" | "HEAD", "/readyz") => {
-            let (status, body) = match state.readiness() {
-                Readiness::Ready => probe("200 OK", "ready\n"),
-                Readiness::Starting => probe("503 Service Unavailable", "starting\n"),
-                Readiness::Finished => {
-                    probe("503 Service Unavailable", "finished: the run takes no more actors\n")
-                }
+            let (status, body) = match state.liveness() {
+                Ok(()) => ("200 OK", "ok\n".to_string()),
+                Err(why) => ("503 Service Unavailable", format!("wedged: {why}\n")),
             };
-            write_response(&mut sock, status, TEXT, body).await
+            write_response(&mut sock, status, TEXT, &probe(&body)).await
+        }
+        // Readiness: whether it takes actors. A stall does not make it unready (actors could
+        // not reconnect, which would not help), but the body names what is stalled.
+        ("GET" | "HEAD", "/readyz") => {
+            let (status, mut body) = match state.readiness() {
+                Readiness::Ready => ("200 OK", "ready\n".to_string()),
+                Readiness::Starting => ("503 Service Unavailable", "starting\n".to_string()),
+                Readiness::Finished => (
+                    "503 Service Unavailable",
+                    "finished: the run takes no more actors\n".to_string(),
+                ),
+            };
+            for s in state.stalled() {
+                body += &format!(
+                    "stalled: {} for {:.1} s: {}; last error: {}\n",
+                    s.component,
+                    s.for_s,
+                    s.what,
+                    s.last_error.as_deref().unwrap_or("none")
+                );
+            }
+            write_response(&mut sock, status, TEXT, &probe(&body)).await
         }
         (_, "/metrics" | "/healthz" | "/readyz") => {
             write_response(&mut sock, "405 Method Not Allowed", "", "").await
@@ -797,6 +835,9 @@ mod tests {
         ] {
             assert!(value(&text, name).is_finite(), "{name}");
         }
+        // (dvnav_heap_in_use_bytes needs the dvnav binary's counting allocator: the soak test.)
+        #[cfg(target_os = "linux")]
+        assert!(value(&text, "dvnav_process_resident_bytes") > 1e6, "{text}");
         // Every sample line belongs to a declared metric.
         let declared: Vec<&str> =
             text.lines().filter_map(|l| l.strip_prefix("# TYPE ")?.split(' ').next()).collect();
@@ -928,6 +969,27 @@ mod tests {
         let head = http(addr, "HEAD /readyz HTTP/1.1\r\n\r\n").await;
         assert!(head.starts_with("HTTP/1.1 200 OK") && head.ends_with("\r\n\r\n"), "{head}");
         assert!(http(addr, "POST /readyz HTTP/1.1\r\n\r\n").await.starts_with("HTTP/1.1 405"));
+
+        // Stalls: named in /readyz (still ready); a trainer stalled past
+        // learner.liveness_stall_s (300 s by default) fails liveness, an actor never does.
+        let stall = |component: &str, for_s: f64| crate::watchdog::Stall {
+            component: component.into(),
+            for_s,
+            what: "no update while the rate limiter owes 3 update(s)".into(),
+            last_error: Some("boom".into()),
+        };
+        s.set_stalled(vec![stall("trainer", 4.0), stall("actor:a", 900.0)]);
+        let ready = http(addr, &get("/readyz")).await;
+        assert_eq!(status_line(&ready), "HTTP/1.1 200 OK", "{ready}");
+        assert!(ready.contains("stalled: trainer for 4.0 s: no update") && ready.contains("boom"));
+        assert!(ready.contains("stalled: actor:a for 900.0 s"), "{ready}");
+        assert!(http(addr, &get("/healthz")).await.starts_with("HTTP/1.1 200 OK"));
+        s.set_stalled(vec![stall("trainer", 300.0)]);
+        let wedged = http(addr, &get("/healthz")).await;
+        assert_eq!(status_line(&wedged), "HTTP/1.1 503 Service Unavailable", "{wedged}");
+        assert!(wedged.contains("wedged: trainer stalled for 300 s") && wedged.contains("boom"));
+        s.set_stalled(vec![]);
+        assert!(http(addr, &get("/healthz")).await.starts_with("HTTP/1.1 200 OK"));
 
         // The step budget is reached (or Ctrl-C): no more actors, though still alive.
         s.finish();

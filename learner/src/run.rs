@@ -34,6 +34,8 @@ pub struct LearnerOptions {
     pub metrics_listener: Option<Arc<std::net::TcpListener>>,
     /// Where the networks train (`--device`): the CPU, or a CUDA GPU.
     pub device: Device,
+    /// Serve gRPC over TLS (`--tls-cert`, `--tls-key`; see [`dvnav_common::tls`]).
+    pub tls: Option<tonic::transport::ServerTlsConfig>,
 }
 
 /// The learner's part of `run_summary.json`.
@@ -75,6 +77,8 @@ pub async fn run(
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<LearnerSummary> {
     let started = Instant::now();
+    // First: a TLS setting the server cannot use fails before anything starts.
+    let mut transport = crate::service::transport_server(opts.tls.clone())?;
     check_writable(&opts.out_dir)?;
     let config_path = opts.out_dir.join("config.toml");
     std::fs::write(&config_path, cfg.to_toml_string())
@@ -125,13 +129,13 @@ pub async fn run(
             },
         ))
     };
-    // The watchdog: names a stuck component every heartbeat.
+    // The watchdog: names a stuck component within one heartbeat.
     let watchdog = {
         let mut stop = state.shutdown_signal();
+        let heartbeat = Duration::from_secs_f64(state.config().learner.heartbeat_s);
         tokio::spawn(crate::watchdog::run(
             state.clone(),
-            crate::watchdog::HEARTBEAT,
-            crate::watchdog::STALL_AFTER,
+            crate::watchdog::Timing::for_heartbeat(heartbeat),
             async move {
                 let _ = stop.wait_for(|s| *s).await;
             },
@@ -157,14 +161,12 @@ pub async fn run(
 
     let service = LearnerService::server(state.clone());
     let mut server_stop = state.shutdown_signal();
-    let server = tokio::spawn(
-        crate::service::transport_server().add_service(service).serve_with_incoming_shutdown(
-            TcpListenerStream::new(listener),
-            async move {
-                let _ = server_stop.wait_for(|s| *s).await;
-            },
-        ),
-    );
+    let server = tokio::spawn(transport.add_service(service).serve_with_incoming_shutdown(
+        TcpListenerStream::new(listener),
+        async move {
+            let _ = server_stop.wait_for(|s| *s).await;
+        },
+    ));
 
     // Until the budget is reached or we are told to stop.
     let mut done = state.done_signal();

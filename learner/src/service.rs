@@ -67,15 +67,24 @@ impl LearnerService {
     }
 }
 
-/// The HTTP/2 server for the learner service. Flow-control windows are sized for ~0.5 MB
-/// batches and ~1 MB weight messages (with the 64 KiB defaults every 64 KiB of a message waits
-/// for a window update); keepalive pings notice an actor whose machine vanished.
-pub fn transport_server() -> tonic::transport::Server {
-    tonic::transport::Server::builder()
+/// The HTTP/2 server for the learner service, over TLS with `tls` (`--tls-cert`, see
+/// [`dvnav_common::tls`]). Flow-control windows are sized for ~0.5 MB batches and ~1 MB weight
+/// messages (with the 64 KiB defaults every 64 KiB of a message waits for a window update);
+/// keepalive pings notice an actor whose machine vanished.
+pub fn transport_server(
+    tls: Option<tonic::transport::ServerTlsConfig>,
+) -> anyhow::Result<tonic::transport::Server> {
+    let server = tonic::transport::Server::builder()
         .initial_stream_window_size(Some(4 << 20))
         .initial_connection_window_size(Some(16 << 20))
         .http2_keepalive_interval(Some(std::time::Duration::from_secs(5)))
-        .http2_keepalive_timeout(Some(std::time::Duration::from_secs(10)))
+        .http2_keepalive_timeout(Some(std::time::Duration::from_secs(10)));
+    match tls {
+        Some(tls) => server
+            .tls_config(tls)
+            .map_err(|e| anyhow::anyhow!("cannot set up TLS for the learner service: {e}")),
+        None => Ok(server),
+    }
 }
 
 /// Wire form of the variables an actor receives.

@@ -395,6 +395,35 @@ impl LearnerState {
         self.counters.lock().expect("counters lock").stalled = stalled;
     }
 
+    /// What the watchdog found stuck at its last sample.
+    pub fn stalled(&self) -> Vec<crate::watchdog::Stall> {
+        self.counters.lock().expect("counters lock").stalled.clone()
+    }
+
+    /// Whether the learner is live (`GET /healthz`): not when the trainer or the rate limiter,
+    /// the parts only a restart can unstick, has been stalled for `learner.liveness_stall_s`.
+    /// A stalled ingest or actor is the actors' side; restarting the learner would not help.
+    pub fn liveness(&self) -> Result<(), String> {
+        let limit = self.cfg.learner.liveness_stall_s;
+        if limit <= 0.0 {
+            return Ok(());
+        }
+        let c = self.counters.lock().expect("counters lock");
+        let wedged = c.stalled.iter().find(|s| {
+            matches!(s.component.as_str(), "trainer" | "rate_limiter") && s.for_s >= limit
+        });
+        match wedged {
+            None => Ok(()),
+            Some(s) => Err(format!(
+                "{} stalled for {:.0} s (learner.liveness_stall_s = {limit}): {}; last error: {}",
+                s.component,
+                s.for_s,
+                s.what,
+                s.last_error.as_deref().unwrap_or("none")
+            )),
+        }
+    }
+
     /// The config text sent to actors.
     pub fn config_toml(&self) -> &str {
         &self.config_toml
@@ -903,6 +932,7 @@ mod tests {
             elapsed_s: 0.0,
             status: st,
             rooms: vec![],
+            memory: Default::default(),
         });
         assert!(text.contains("dvnav_requests_rejected_total{reason=\"rewards\"} "), "{text}");
     }

@@ -1,8 +1,14 @@
 //! Names the part of the learner that stopped making progress.
 //!
-//! Every [`HEARTBEAT`] the learner hands the [`Watchdog`] an [`Observation`] of its progress
-//! counters; the watchdog remembers when each counter last moved and reports a [`Stall`] for
-//! each component stuck for at least its `stall_after`:
+//! Five times per heartbeat interval (`learner.heartbeat_s`) the learner hands the
+//! [`Watchdog`] an [`Observation`] of its progress counters; the watchdog remembers when each
+//! counter last moved and reports a [`Stall`] for each component expected to move that has not
+//! for three of those samples. The last progress happened at most one sample before it was
+//! seen, so a stalled component is named 0.6 to 0.8 of a heartbeat after its last progress: the
+//! last fifth is slack for a late sample on a busy machine, so it is named within one
+//! heartbeat interval. Actors hand over a batch at least every quarter interval, even a part
+//! one (`actor::adder`): a live actor shows progress at least every 0.45 interval as sampled,
+//! well inside the 0.6 that would make it a stall.
 //!
 //! - `ingest`: actors are connected but no transition has been accepted, and the rate limiter
 //!   is not what holds them back;
@@ -13,7 +19,8 @@
 //!
 //! The logic is pure (time comes in as a [`Duration`] since start), so the tests drive it with a
 //! fake clock; [`run`] is the task that samples the state, logs each stall at warn level with its
-//! duration and last error, and stores them for `/metrics` (`dvnav_stalled{component}`).
+//! duration and last error, and stores them for `/metrics` (`dvnav_stalled{component}`),
+//! `/readyz` and, past `learner.liveness_stall_s`, `/healthz`.
 
 use crate::state::LearnerState;
 use serde::Serialize;
@@ -23,11 +30,24 @@ use std::sync::Arc;
 use std::time::Duration;
 use tokio::time::Instant;
 
-/// How often the watchdog looks at the counters.
-pub const HEARTBEAT: Duration = Duration::from_secs(10);
-/// How long without progress makes a stall: three heartbeats, so one slow update or a
-/// checkpoint does not count, and a real stall is named within one heartbeat after that.
-pub const STALL_AFTER: Duration = Duration::from_secs(30);
+/// When the watchdog looks and how long without progress makes a stall, for one heartbeat
+/// interval (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Timing {
+    /// How often it samples the counters: a fifth of the heartbeat.
+    pub sample_every: Duration,
+    /// How long a component expected to move may show no progress: the heartbeat less two
+    /// samples, one for the progress seen late and one of slack for a late sample.
+    pub stall_after: Duration,
+}
+
+impl Timing {
+    /// The timing for a heartbeat interval.
+    pub fn for_heartbeat(heartbeat: Duration) -> Self {
+        let sample_every = heartbeat / 5;
+        Self { sample_every, stall_after: heartbeat - 2 * sample_every }
+    }
+}
 
 /// One actor as the watchdog sees it.
 #[derive(Clone, Debug, PartialEq)]
@@ -200,20 +220,18 @@ impl Watchdog {
     }
 }
 
-/// Looks at `state` every `interval` until `stop` resolves: logs each stall at warn level
-/// (component, how long, last error), logs when it clears, and stores the current stalls in
-/// the state for `/metrics` and the summary.
-pub async fn run(
-    state: Arc<LearnerState>,
-    interval: Duration,
-    stall_after: Duration,
-    stop: impl Future<Output = ()>,
-) {
+/// Looks at `state` at `timing.sample_every` until `stop` resolves: logs each new stall at
+/// warn level (component, how long, what, last error) and again every minute while it lasts,
+/// logs when it clears, and stores the current stalls in the state for `/metrics`, the probes
+/// and the summary.
+pub async fn run(state: Arc<LearnerState>, timing: Timing, stop: impl Future<Output = ()>) {
     let started = Instant::now();
-    let mut watchdog = Watchdog::new(stall_after);
-    let mut ticks = tokio::time::interval(interval);
+    let mut watchdog = Watchdog::new(timing.stall_after);
+    let mut ticks = tokio::time::interval(timing.sample_every);
     ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let mut previous: Vec<String> = Vec::new();
+    // Components stalled at the previous sample, with when each was last logged.
+    let mut previous: BTreeMap<String, Instant> = BTreeMap::new();
+    const REPEAT: Duration = Duration::from_secs(60);
     tokio::pin!(stop);
     loop {
         tokio::select! {
@@ -221,7 +239,15 @@ pub async fn run(
             _ = &mut stop => break,
         }
         let stalls = watchdog.check(started.elapsed(), &Observation::of(&state));
+        let now = Instant::now();
+        let mut current = BTreeMap::new();
         for s in &stalls {
+            let logged = previous.get(&s.component).copied();
+            let due = logged.is_none_or(|t| now.duration_since(t) >= REPEAT);
+            current.insert(s.component.clone(), if due { now } else { logged.unwrap_or(now) });
+            if !due {
+                continue;
+            }
             tracing::warn!(
                 component = %s.component,
                 stalled_for_s = s.for_s.round(),
@@ -230,10 +256,10 @@ pub async fn run(
                 "watchdog: component stalled"
             );
         }
-        for c in previous.iter().filter(|c| !stalls.iter().any(|s| &s.component == *c)) {
+        for c in previous.keys().filter(|c| !current.contains_key(*c)) {
             tracing::info!(component = %c, "watchdog: component moving again");
         }
-        previous = stalls.iter().map(|s| s.component.clone()).collect();
+        previous = current;
         state.set_stalled(stalls);
     }
 }
@@ -370,9 +396,10 @@ mod tests {
     }
 
     /// The task stores what it finds in the state (and so in `/metrics`), on tokio's paused
-    /// clock: no real sleeping.
+    /// clock: no real sleeping. The trainer stops (never starts) at 0 s: it is named by 0.8 of
+    /// a heartbeat, not before 0.6.
     #[tokio::test(start_paused = true)]
-    async fn the_task_names_a_stuck_trainer_in_the_state() {
+    async fn the_task_names_a_stuck_trainer_within_one_heartbeat() {
         let mut cfg = dvnav_common::config::Config::default();
         cfg.sac.learning_starts = 0;
         let state = Arc::new(LearnerState::new(cfg, "r".into(), None, vec![]));
@@ -380,15 +407,33 @@ mod tests {
         state.limiter().inserted(100);
         assert!(state.limiter().pressure().updates_owed > 0);
         state.record_trainer_error("boom".into());
+        let heartbeat = Duration::from_secs(5);
         let (tx, rx) = tokio::sync::oneshot::channel::<()>();
-        let task = tokio::spawn(run(state.clone(), HEARTBEAT, STALL_AFTER, async {
+        let task = tokio::spawn(run(state.clone(), Timing::for_heartbeat(heartbeat), async {
             let _ = rx.await;
         }));
-        tokio::time::sleep(STALL_AFTER + HEARTBEAT / 2).await;
+        tokio::time::sleep(heartbeat / 2).await;
+        assert!(state.status().stalled.is_empty(), "named before 0.6 heartbeat");
+        tokio::time::sleep(heartbeat * 3 / 10).await;
         let stalled = state.status().stalled;
         assert_eq!(components(&stalled), ["trainer"]);
+        assert!(stalled[0].for_s <= heartbeat.as_secs_f64() * 0.8, "{stalled:?}");
         assert_eq!(stalled[0].last_error.as_deref(), Some("boom"));
         tx.send(()).unwrap();
         task.await.unwrap();
+    }
+
+    #[test]
+    fn timing_names_a_stall_within_one_heartbeat_of_the_last_progress() {
+        for h in [0.1, 1.0, 5.0, 30.0] {
+            let heartbeat = Duration::from_secs_f64(h);
+            let t = Timing::for_heartbeat(heartbeat);
+            // Progress just after a sample is seen one sample later: the worst case, with a
+            // sample of slack left for a busy machine.
+            assert!(t.stall_after + 2 * t.sample_every <= heartbeat, "{t:?}");
+            // An actor that hands over a batch every quarter heartbeat is seen moving at least
+            // every quarter plus one sample: never a stall.
+            assert!(heartbeat / 4 + t.sample_every < t.stall_after, "{t:?}");
+        }
     }
 }

@@ -8,7 +8,7 @@ use std::time::Duration;
 /// Run an actor: simulate rooms, act with the newest policy, stream transitions to a learner.
 #[derive(Args, Debug)]
 pub struct ActorArgs {
-    /// Learner address, e.g. http://10.0.0.5:50051.
+    /// Learner address, e.g. http://10.0.0.5:50051 (https://… over TLS, see --tls-ca).
     #[arg(long)]
     pub learner: String,
     /// Name of this actor, unique within the run (default: actor-PID).
@@ -23,6 +23,8 @@ pub struct ActorArgs {
     /// File holding the shared access token (or set DVNAV_TOKEN).
     #[arg(long)]
     pub token_file: Option<PathBuf>,
+    #[command(flatten)]
+    pub tls: super::tls::ClientTlsArgs,
 }
 
 pub fn run(args: ActorArgs) -> anyhow::Result<ExitCode> {
@@ -32,6 +34,7 @@ pub fn run(args: ActorArgs) -> anyhow::Result<ExitCode> {
         unsafe { std::env::set_var("CANDLE_NUM_THREADS", "1") };
     }
     let token = super::read_token(args.token_file.as_deref())?;
+    let tls = args.tls.load()?;
     let name = args.name.unwrap_or_else(|| format!("actor-{}", std::process::id()));
     let rt = super::runtime()?;
     rt.block_on(async move {
@@ -41,6 +44,7 @@ pub fn run(args: ActorArgs) -> anyhow::Result<ExitCode> {
                 name,
                 out_dir: args.out,
                 token,
+                tls,
                 connect_timeout: Duration::from_secs(args.connect_timeout_s),
             },
             super::shutdown_signal(),

@@ -315,7 +315,7 @@ async fn bench_transport(transitions: usize, batch: usize) -> anyhow::Result<ser
     let addr = listener.local_addr()?;
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
     let server = tokio::spawn(
-        dvnav_learner::service::transport_server()
+        dvnav_learner::service::transport_server(None)?
             .add_service(LearnerService::server(state.clone()))
             .serve_with_incoming_shutdown(
                 tokio_stream::wrappers::TcpListenerStream::new(listener),
@@ -325,7 +325,8 @@ async fn bench_transport(transitions: usize, batch: usize) -> anyhow::Result<ser
             ),
     );
     let mut client =
-        dvnav_actor::run::connect(&format!("http://{addr}"), None, Duration::from_secs(10)).await?;
+        dvnav_actor::run::connect(&format!("http://{addr}"), None, None, Duration::from_secs(10))
+            .await?;
     let id = client
         .register(dvnav_proto::RegisterRequest {
             actor_name: "bench".into(),

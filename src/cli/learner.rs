@@ -25,6 +25,8 @@ pub struct LearnerArgs {
     /// File holding the shared access token actors must present (or set DVNAV_TOKEN).
     #[arg(long)]
     pub token_file: Option<PathBuf>,
+    #[command(flatten)]
+    pub tls: super::tls::ServerTlsArgs,
     /// Continue from the newest complete checkpoint in `--out`: networks, optimizers,
     /// temperature, counters, curriculum, random generators (and the replay buffer when it was
     /// saved). Without `--config`, the run directory's `config.toml` is used.
@@ -75,13 +77,20 @@ pub fn run(mut args: LearnerArgs) -> anyhow::Result<ExitCode> {
         unsafe { std::env::set_var("CANDLE_NUM_THREADS", cfg.learner.threads.to_string()) };
     }
     let token = super::read_token(args.token_file.as_deref())?;
+    let tls = args.tls.load()?;
     let rt = super::runtime()?;
     rt.block_on(async move {
         let listener = tokio::net::TcpListener::bind(&args.listen)
             .await
             .map_err(|e| anyhow::anyhow!("cannot listen on {}: {e}", args.listen))?;
         let addr = listener.local_addr()?;
-        tracing::info!(%addr, out = %args.out.display(), "learner listening");
+        tracing::info!(
+            %addr,
+            out = %args.out.display(),
+            tls = tls.is_some(),
+            token = token.is_some(),
+            "learner listening"
+        );
         // Bound before the address file appears, so a supervisor that sees it finds both.
         let metrics_listener = match &args.metrics_addr {
             Some(a) => {
@@ -117,6 +126,7 @@ pub fn run(mut args: LearnerArgs) -> anyhow::Result<ExitCode> {
                 resume: args.resume,
                 metrics_listener,
                 device,
+                tls,
             },
             super::shutdown_signal(),
         )

@@ -2,6 +2,7 @@
 
 mod actor;
 mod bench;
+mod certs;
 mod eval;
 mod eval_out;
 mod inspect;
@@ -9,6 +10,7 @@ mod learner;
 mod plot;
 mod rooms;
 mod serve;
+mod tls;
 mod train;
 mod transfer;
 
@@ -29,8 +31,8 @@ pub struct Cli {
 }
 
 impl Cli {
-    /// True for commands that only read files and print (inspect, eval, plot, rooms,
-    /// transfer): they may die quietly on a closed stdout pipe. The others hold network
+    /// True for commands that only read or write files and print (inspect, eval, plot, rooms,
+    /// transfer, certs): they may die quietly on a closed stdout pipe. The others hold network
     /// sockets, where a default SIGPIPE would kill a learner, an actor, the supervisor or the
     /// controller the moment it writes to a connection its peer has reset.
     pub fn prints_only(&self) -> bool {
@@ -41,6 +43,7 @@ impl Cli {
                 | Command::Plot(_)
                 | Command::Rooms(_)
                 | Command::Transfer(_)
+                | Command::Certs(_)
         )
     }
 }
@@ -71,6 +74,16 @@ enum Command {
     /// DVST controller service (gRPC): a robot sends its scan, goal and velocity each control
     /// cycle and gets (v, ω) back; its footprint can change at run time.
     Serve(serve::ServeArgs),
+    /// Write a CA and TLS certificates for runs across machines (`--tls-cert`, `--tls-ca`).
+    ///
+    /// Writes into --out: `ca.pem` and `ca.key`, a new private CA (clients trust `ca.pem`:
+    /// `dvnav actor --tls-ca`; keep `ca.key` private); `server.pem` and `server.key`, signed by
+    /// it for the --host names and addresses (`--tls-cert` / `--tls-key` of `dvnav learner` or
+    /// `dvnav serve`); `client.pem` and `client.key`, a client certificate for mutual TLS
+    /// (`dvnav actor --tls-cert/--tls-key` against a learner run with `--tls-client-ca
+    /// ca.pem`). ECDSA P-256 keys, written with mode 0600. Existing files are never replaced
+    /// without --force.
+    Certs(certs::CertsArgs),
 }
 
 /// Sets up logging to stderr.
@@ -103,6 +116,7 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Rooms(a) => rooms::run(a),
         Command::Transfer(a) => transfer::run(a),
         Command::Serve(a) => serve::run(a),
+        Command::Certs(a) => certs::run(a),
     }
 }
 
@@ -170,6 +184,7 @@ mod sigpipe_tests {
         let cli = |args: &[&str]| Cli::try_parse_from(args).unwrap();
         assert!(cli(&["dvnav", "inspect", "runs/x"]).prints_only());
         assert!(cli(&["dvnav", "rooms", "list"]).prints_only());
+        assert!(cli(&["dvnav", "certs", "--out", "tls", "--host", "h"]).prints_only());
         for server in [
             vec!["dvnav", "learner"],
             vec!["dvnav", "actor", "--learner", "http://127.0.0.1:1", "--name", "a"],

@@ -42,6 +42,8 @@ pub struct ServeArgs {
     /// TOKEN` (or set DVNAV_TOKEN).
     #[arg(long)]
     token_file: Option<PathBuf>,
+    #[command(flatten)]
+    tls: super::tls::ServerTlsArgs,
     /// Safety margin (m) for every footprint, replacing the files' own `margin`.
     #[arg(long)]
     margin: Option<f64>,
@@ -52,6 +54,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<ExitCode> {
     single_candle_thread();
     let ctl = Arc::new(load_controller(&args.checkpoint, &args.footprint, args.margin)?);
     let token = super::read_token(args.token_file.as_deref())?;
+    let tls = args.tls.load()?;
     super::runtime()?.block_on(async move {
         let listener = tokio::net::TcpListener::bind(&args.listen)
             .await
@@ -70,12 +73,13 @@ pub fn run(args: ServeArgs) -> anyhow::Result<ExitCode> {
             omega_max = fp.bounds.omega_max,
             beams = info.beams,
             token = token.is_some(),
+            tls = tls.is_some(),
             "controller listening"
         );
         if let Some(f) = &args.addr_file {
             write_addr_file(f, addr)?;
         }
-        serve(listener, super::shutdown_signal(), ctl.clone(), token).await?;
+        serve(listener, super::shutdown_signal(), ctl.clone(), token, tls).await?;
         tracing::info!(commands = ctl.info().commands, "controller stopped");
         Ok(ExitCode::SUCCESS)
     })
@@ -138,18 +142,25 @@ fn write_addr_file(f: &Path, addr: std::net::SocketAddr) -> anyhow::Result<()> {
 /// not keep the server from stopping.
 const DRAIN_GRACE: Duration = Duration::from_secs(2);
 
-/// Serves `ctl` on `listener` until `shutdown` resolves, then lets calls in flight finish
-/// (for at most [`DRAIN_GRACE`]).
+/// Serves `ctl` on `listener` (over TLS with `tls`) until `shutdown` resolves, then lets calls
+/// in flight finish (for at most [`DRAIN_GRACE`]).
 pub async fn serve(
     listener: tokio::net::TcpListener,
     shutdown: impl Future<Output = ()>,
     ctl: Arc<DvstController<MetaAgent>>,
     token: Option<String>,
+    tls: Option<tonic::transport::ServerTlsConfig>,
 ) -> anyhow::Result<()> {
     // Small messages, one per control cycle: Nagle's algorithm would hold replies back.
     let incoming = tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true));
     let (began, draining) = tokio::sync::oneshot::channel::<()>();
-    let server = tonic::transport::Server::builder()
+    let mut builder = tonic::transport::Server::builder();
+    if let Some(tls) = tls {
+        builder = builder
+            .tls_config(tls)
+            .map_err(|e| anyhow::anyhow!("cannot set up TLS for the controller service: {e}"))?;
+    }
+    let server = builder
         .add_service(ControllerServer::new(ControllerService { ctl, token }))
         .serve_with_incoming_shutdown(incoming, async {
             shutdown.await;
@@ -367,6 +378,7 @@ pub fn bench(checkpoint: &Path, footprint: &Path, calls: usize) -> anyhow::Resul
                 let _ = stopped.await;
             },
             ctl.clone(),
+            None,
             None,
         ));
         let mut client =

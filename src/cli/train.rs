@@ -557,7 +557,7 @@ fn run_one(args: TrainArgs) -> anyhow::Result<ExitCode> {
 
     let rt = super::runtime()?;
     let mut client =
-        rt.block_on(dvnav_actor::run::connect(&url, None, Duration::from_secs(30))).ok();
+        rt.block_on(dvnav_actor::run::connect(&url, None, None, Duration::from_secs(30))).ok();
     let tty = std::io::IsTerminal::is_terminal(&std::io::stderr());
     let mut last_print = Instant::now() - Duration::from_secs(3600);
     let mut forwarded = false;
