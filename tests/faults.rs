@@ -16,7 +16,7 @@ use dvnav_proto::learner_client::LearnerClient;
 use serde_json::Value;
 use std::io::{Read, Write};
 use std::path::Path;
-use std::process::{Command, Stdio};
+use std::process::{Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
 /// The smoke test's config with a larger budget, so the kill and the restart fall well inside
@@ -64,11 +64,22 @@ fn wait_for<T>(what: &str, limit: Duration, mut f: impl FnMut() -> Option<T>) ->
 
 /// One HTTP/1.1 GET; returns the status line.
 fn http_get(addr: &str, path: &str) -> String {
-    let mut sock = std::net::TcpStream::connect(addr).unwrap();
-    write!(sock, "GET {path} HTTP/1.1\r\nHost: x\r\n\r\n").unwrap();
-    let mut reply = String::new();
-    sock.read_to_string(&mut reply).unwrap();
-    reply.lines().next().unwrap_or("").to_string()
+    http_get_body(addr, path).lines().next().unwrap_or("").to_string()
+}
+
+/// Waits up to two minutes for `dvnav train` to exit; kills it and fails with `log()` if not.
+fn wait_exit(train: &mut std::process::Child, log: impl Fn() -> String) -> ExitStatus {
+    let deadline = Instant::now() + Duration::from_secs(120);
+    loop {
+        if let Some(st) = train.try_wait().unwrap() {
+            return st;
+        }
+        if Instant::now() > deadline {
+            let _ = train.kill();
+            panic!("dvnav train did not finish: {}", log());
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
 }
 
 /// Starts `dvnav train --actors 2` with `config` into `out`, its stderr to `DIR/train.log`,
@@ -150,17 +161,7 @@ fn a_killed_actor_is_restarted_and_nothing_is_counted_twice() {
     assert_eq!(pids["actors"][0]["process"], "actor-0-r1", "{pids}");
     assert_eq!(pids["actors"][0]["restarts"], 1, "{pids}");
 
-    let deadline = Instant::now() + Duration::from_secs(120);
-    let exit = loop {
-        if let Some(st) = train.try_wait().unwrap() {
-            break st;
-        }
-        if Instant::now() > deadline {
-            let _ = train.kill();
-            panic!("dvnav train did not finish: {}", train_log());
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    };
+    let exit = wait_exit(&mut train, train_log);
     let train_log = train_log();
     assert!(exit.success(), "dvnav train failed: {train_log}\nlearner:\n{}", log("learner.log"));
     assert!(
@@ -375,14 +376,7 @@ fn a_frozen_actor_is_named_within_one_heartbeat() {
         "the log names it too: {log}"
     );
 
-    let deadline = Instant::now() + Duration::from_secs(120);
-    let exit = loop {
-        if let Some(st) = train.try_wait().unwrap() {
-            break st;
-        }
-        assert!(Instant::now() < deadline, "dvnav train did not finish");
-        std::thread::sleep(Duration::from_millis(50));
-    };
+    let exit = wait_exit(&mut train, learner_log);
     assert!(exit.success(), "{}", learner_log());
     let s = read_json(&out.join("run_summary.json")).unwrap();
     assert_eq!(s["transitions_accounted"], true, "{s}");
@@ -420,14 +414,7 @@ fn restarts_back_off_and_stop_at_the_limit() {
     for process in ["actor-0", "actor-0-r1", "actor-0-r2"] {
         kill(process);
     }
-    let deadline = Instant::now() + Duration::from_secs(120);
-    let exit = loop {
-        if let Some(st) = train.try_wait().unwrap() {
-            break st;
-        }
-        assert!(Instant::now() < deadline, "dvnav train did not finish: {}", train_log());
-        std::thread::sleep(Duration::from_millis(50));
-    };
+    let exit = wait_exit(&mut train, train_log);
     let log = train_log();
     assert_eq!(exit.code(), Some(1), "{log}");
     assert!(log.contains("not restarting it: --max-actor-restarts 2 reached"), "{log}");

@@ -315,12 +315,7 @@ async fn over_tls_a_client_with_the_ca_is_answered_and_a_plaintext_one_is_not() 
     // Another CA: the handshake fails.
     let other = trusting(file("other", "ca.pem")).load().unwrap();
     let e = endpoint(&https, other.as_ref()).unwrap().connect().await.expect_err("another CA");
-    let mut text = e.to_string();
-    let mut source = std::error::Error::source(&e);
-    while let Some(inner) = source {
-        text += &format!(": {inner}");
-        source = inner.source();
-    }
+    let text = dvnav_common::tls::error_chain(&e);
     assert!(text.contains("invalid peer certificate: UnknownIssuer"), "{text}");
     // The trusted client is still answered.
     assert_eq!(client.info(InfoRequest {}).await.unwrap().into_inner().scan_beams, 540);

@@ -127,20 +127,6 @@ fn client_tls(
     }
 }
 
-/// An error with its sources: a refused handshake is a few levels down.
-fn chain(e: &(dyn std::error::Error + 'static)) -> String {
-    let mut s = e.to_string();
-    let mut source = e.source();
-    while let Some(inner) = source {
-        let text = inner.to_string();
-        if !s.contains(&text) {
-            s += &format!(": {text}");
-        }
-        source = inner.source();
-    }
-    s
-}
-
 /// Connects to `url` with `tls` and registers; the actor id, or what went wrong.
 async fn register(url: &str, tls: &ClientTlsFiles, token: Option<&str>) -> Result<u32, String> {
     tokio::time::timeout(Duration::from_secs(10), try_register(url, tls, token))
@@ -150,7 +136,10 @@ async fn register(url: &str, tls: &ClientTlsFiles, token: Option<&str>) -> Resul
 
 async fn try_register(url: &str, tls: &ClientTlsFiles, token: Option<&str>) -> Result<u32, String> {
     let ep = endpoint(url, tls.load().unwrap().as_ref()).unwrap();
-    let channel = ep.connect().await.map_err(|e| format!("connect: {}", chain(&e)))?;
+    let channel = ep
+        .connect()
+        .await
+        .map_err(|e| format!("connect: {}", dvnav_common::tls::error_chain(&e)))?;
     let mut client = LearnerClient::new(channel);
     let mut req = tonic::Request::new(RegisterRequest {
         actor_name: "probe".into(),
@@ -162,7 +151,7 @@ async fn try_register(url: &str, tls: &ClientTlsFiles, token: Option<&str>) -> R
     }
     match client.register(req).await {
         Ok(r) => Ok(r.into_inner().actor_id),
-        Err(s) => Err(format!("{:?}: {}", s.code(), chain(&s))),
+        Err(s) => Err(format!("{:?}: {}", s.code(), dvnav_common::tls::error_chain(&s))),
     }
 }
 

@@ -95,7 +95,7 @@ pub async fn connect(
         match endpoint.connect().await {
             Ok(c) => return make_client(c, token),
             Err(e) if Instant::now() + backoff < deadline => {
-                let error = error_chain(&e);
+                let error = dvnav_common::tls::error_chain(&e);
                 tracing::debug!(%url, %error, ?backoff, "learner not reachable yet; retrying");
                 tokio::time::sleep(backoff).await;
                 backoff = (backoff * 2).min(MAX_BACKOFF);
@@ -103,27 +103,10 @@ pub async fn connect(
             Err(e) => anyhow::bail!(
                 "cannot reach the learner at {} within {timeout:?}: {}",
                 endpoint.uri(),
-                error_chain(&e)
+                dvnav_common::tls::error_chain(&e)
             ),
         }
     }
-}
-
-/// An error with its sources: tonic's transport errors say only "transport error" at the top;
-/// a refused TLS handshake (unknown CA, wrong name) is further down.
-fn error_chain(e: &(dyn std::error::Error + 'static)) -> String {
-    let mut s = e.to_string();
-    let mut source = e.source();
-    while let Some(inner) = source {
-        // Some errors' messages already hold their source's.
-        let text = inner.to_string();
-        if !s.contains(&text) {
-            s.push_str(": ");
-            s.push_str(&text);
-        }
-        source = inner.source();
-    }
-    s
 }
 
 /// What registration gives an actor.
@@ -414,12 +397,12 @@ pub async fn run_link(
             let channel = match ep.connect().await {
                 Ok(c) => c,
                 Err(e) => {
-                    tracing::debug!(error = %error_chain(&e), "learner not reachable; retrying");
+                    tracing::debug!(error = %dvnav_common::tls::error_chain(&e), "learner not reachable; retrying");
                     continue;
                 }
             };
             let Ok(mut c) = make_client(channel, opts.token.as_deref()) else { break None };
-            let tls = opts.tls.is_some() || opts.url.starts_with("https://");
+            let tls = dvnav_common::tls::dials_tls(&opts.url, opts.tls.as_ref());
             match register(&mut c, &opts.name, tls).await {
                 Ok(reg) => break Some((c, reg)),
                 Err(e) => tracing::debug!(error = %e, "re-registration failed; retrying"),

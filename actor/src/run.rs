@@ -72,7 +72,7 @@ pub async fn run(
     let mut client =
         connect(&opts.learner_url, opts.tls.as_ref(), opts.token.as_deref(), opts.connect_timeout)
             .await?;
-    let tls = opts.tls.is_some() || opts.learner_url.starts_with("https://");
+    let tls = dvnav_common::tls::dials_tls(&opts.learner_url, opts.tls.as_ref());
     let reg = register(&mut client, &opts.name, tls).await?;
     let cfg = reg.config.clone();
     let actor_id = reg.actor_id;

@@ -37,6 +37,7 @@
 #![warn(missing_docs)]
 
 pub mod alloc_count;
+pub mod auth;
 pub mod config;
 pub mod control;
 pub mod core;

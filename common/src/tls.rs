@@ -174,6 +174,29 @@ pub fn dial_url(url: &str, tls: bool) -> String {
     }
 }
 
+/// Whether dialling `url` with `tls` speaks TLS: with a client config, or for an `https://`
+/// URL (see [`endpoint`]).
+pub fn dials_tls(url: &str, tls: Option<&ClientTlsConfig>) -> bool {
+    tls.is_some() || url.starts_with("https://")
+}
+
+/// An error with its sources: tonic's transport errors say only "transport error" at the top;
+/// a refused TLS handshake (unknown CA, wrong name) is a few levels down.
+pub fn error_chain(e: &(dyn std::error::Error + 'static)) -> String {
+    let mut s = e.to_string();
+    let mut source = e.source();
+    while let Some(inner) = source {
+        // Some errors' messages already hold their source's.
+        let text = inner.to_string();
+        if !s.contains(&text) {
+            s.push_str(": ");
+            s.push_str(&text);
+        }
+        source = inner.source();
+    }
+    s
+}
+
 /// The endpoint for `url`: TLS with `tls` when given (an `http://` URL is dialled as
 /// `https://`); an `https://` URL without it trusts the system's CA certificates; plain
 /// HTTP/2 otherwise.

@@ -58,11 +58,7 @@ impl LearnerService {
     }
 
     fn authorize<T>(&self, req: &Request<T>) -> Result<(), Status> {
-        let presented = req
-            .metadata()
-            .get("authorization")
-            .and_then(|v| v.to_str().ok())
-            .and_then(|v| v.strip_prefix("Bearer "));
+        let presented = dvnav_common::auth::bearer_token(req.metadata());
         self.state.authorize(presented).map_err(Status::from)
     }
 }

@@ -298,10 +298,10 @@ impl LearnerState {
 
     /// Checks the shared token, when one is configured.
     pub fn authorize(&self, presented: Option<&str>) -> Result<(), LearnerError> {
-        match &self.token {
-            None => Ok(()),
-            Some(t) if presented == Some(t.as_str()) => Ok(()),
-            Some(_) => Err(LearnerError::Unauthenticated),
+        if dvnav_common::auth::token_accepted(self.token.as_deref(), presented) {
+            Ok(())
+        } else {
+            Err(LearnerError::Unauthenticated)
         }
     }
 

@@ -196,24 +196,15 @@ struct ControllerService {
 }
 
 impl ControllerService {
-    /// The learner's rule: with a token configured, `authorization: Bearer TOKEN` must carry
-    /// it (compared in constant time).
+    /// The learner's rule ([`dvnav_common::auth`]).
     fn authorize<T>(&self, req: &Request<T>) -> Result<(), Status> {
-        let Some(expected) = &self.token else { return Ok(()) };
-        let presented = req
-            .metadata()
-            .get("authorization")
-            .and_then(|v| v.to_str().ok())
-            .and_then(|v| v.strip_prefix("Bearer "));
-        match presented {
-            Some(p) if constant_time_eq(p.as_bytes(), expected.as_bytes()) => Ok(()),
-            _ => Err(Status::unauthenticated("missing or wrong access token")),
+        let presented = dvnav_common::auth::bearer_token(req.metadata());
+        if dvnav_common::auth::token_accepted(self.token.as_deref(), presented) {
+            Ok(())
+        } else {
+            Err(Status::unauthenticated("missing or wrong access token"))
         }
     }
-}
-
-fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
-    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 
 fn act_reply(c: Command, model: &ModelId) -> pb::ActReply {
@@ -468,14 +459,6 @@ mod tests {
         assert!((l.mean - 100.5).abs() < 1e-12);
         let one = Latency::of(vec![3.0]);
         assert_eq!((one.p50, one.p99, one.max), (3.0, 3.0, 3.0));
-    }
-
-    #[test]
-    fn tokens_compare_whole() {
-        assert!(constant_time_eq(b"secret", b"secret"));
-        assert!(!constant_time_eq(b"secret", b"secreT"));
-        assert!(!constant_time_eq(b"secret", b"secret2"));
-        assert!(!constant_time_eq(b"", b"x"));
     }
 
     #[test]
