@@ -14,10 +14,12 @@
 use dvnav_proto::StatusRequest;
 use dvnav_proto::learner_client::LearnerClient;
 use serde_json::Value;
-use std::io::{Read, Write};
 use std::path::Path;
-use std::process::{Command, ExitStatus, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
+use support::{http_get, http_status, wait_exit, wait_for};
+
+mod support;
 
 /// The smoke test's config with a larger budget, so the kill and the restart fall well inside
 /// the run, and no episode logs.
@@ -51,35 +53,42 @@ fn read_json(path: &Path) -> Option<Value> {
     serde_json::from_slice(&std::fs::read(path).ok()?).ok()
 }
 
-fn wait_for<T>(what: &str, limit: Duration, mut f: impl FnMut() -> Option<T>) -> T {
-    let deadline = Instant::now() + limit;
-    loop {
-        if let Some(v) = f() {
-            return v;
-        }
-        assert!(Instant::now() < deadline, "{what}: not within {limit:?}");
-        std::thread::sleep(Duration::from_millis(20));
-    }
+/// Actor `index`'s pid once `out/pids.json` names its process `process`.
+fn actor_pid(out: &Path, index: usize, process: &str) -> i32 {
+    wait_for(process, Duration::from_secs(60), || {
+        let pids = read_json(&out.join("pids.json"))?;
+        let a = &pids["actors"][index];
+        (a["process"] == process).then(|| a["pid"].as_i64().unwrap() as i32)
+    })
 }
 
-/// One HTTP/1.1 GET; returns the status line.
-fn http_get(addr: &str, path: &str) -> String {
-    http_get_body(addr, path).lines().next().unwrap_or("").to_string()
+/// The learner of a running `dvnav train` in `out`: its Status RPC, and its metrics address.
+struct Learner {
+    rt: tokio::runtime::Runtime,
+    client: LearnerClient<tonic::transport::Channel>,
+}
+
+impl Learner {
+    fn attach(out: &Path) -> (Self, String) {
+        let addr = std::fs::read_to_string(out.join("learner.addr")).unwrap();
+        let metrics = std::fs::read_to_string(out.join("metrics.addr")).unwrap();
+        let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+        let client =
+            rt.block_on(LearnerClient::connect(format!("http://{}", addr.trim()))).unwrap();
+        (Learner { rt, client }, metrics.trim().to_string())
+    }
+
+    fn status(&mut self) -> dvnav_proto::StatusReply {
+        self.rt.block_on(self.client.status(StatusRequest {})).unwrap().into_inner()
+    }
 }
 
 /// Waits up to two minutes for `dvnav train` to exit; kills it and fails with `log()` if not.
-fn wait_exit(train: &mut std::process::Child, log: impl Fn() -> String) -> ExitStatus {
-    let deadline = Instant::now() + Duration::from_secs(120);
-    loop {
-        if let Some(st) = train.try_wait().unwrap() {
-            return st;
-        }
-        if Instant::now() > deadline {
-            let _ = train.kill();
-            panic!("dvnav train did not finish: {}", log());
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
+fn wait_train_exit(
+    train: &mut std::process::Child,
+    log: impl Fn() -> String,
+) -> std::process::ExitStatus {
+    wait_exit(train, "dvnav train", Duration::from_secs(120), log)
 }
 
 /// Starts `dvnav train --actors 2` with `config` into `out`, its stderr to `DIR/train.log`,
@@ -109,17 +118,9 @@ fn a_killed_actor_is_restarted_and_nothing_is_counted_twice() {
     let log = |name: &str| std::fs::read_to_string(out.join("logs").join(name)).unwrap_or_default();
     let train_log = || std::fs::read_to_string(dir.path().join("train.log")).unwrap_or_default();
 
-    let pids = wait_for("pids.json", Duration::from_secs(60), || read_json(&out.join("pids.json")));
-    let victim = &pids["actors"][0];
-    assert_eq!(victim["process"], "actor-0", "{pids}");
-    let victim_pid = victim["pid"].as_i64().unwrap() as i32;
-    let addr = std::fs::read_to_string(out.join("learner.addr")).unwrap();
-    let metrics = std::fs::read_to_string(out.join("metrics.addr")).unwrap();
-
-    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
-    let mut client =
-        rt.block_on(LearnerClient::connect(format!("http://{}", addr.trim()))).unwrap();
-    let mut status = || rt.block_on(client.status(StatusRequest {})).unwrap().into_inner();
+    let victim_pid = actor_pid(&out, 0, "actor-0");
+    let (mut learner, metrics) = Learner::attach(&out);
+    let mut status = || learner.status();
     let received_by = |s: &dvnav_proto::StatusReply, name: &str| {
         s.actors.iter().find(|a| a.actor_name == name).map_or(0, |a| a.transitions_received)
     };
@@ -129,8 +130,8 @@ fn a_killed_actor_is_restarted_and_nothing_is_counted_twice() {
         (s.updates > 0 && received_by(&s, "actor-0") >= 128).then_some(s)
     });
     assert!(before.transitions_received < 3000, "killed too late to test a restart: {before:?}");
-    assert_eq!(http_get(metrics.trim(), "/readyz"), "HTTP/1.1 200 OK");
-    assert_eq!(http_get(metrics.trim(), "/healthz"), "HTTP/1.1 200 OK");
+    assert_eq!(http_status(&metrics, "/readyz"), "HTTP/1.1 200 OK");
+    assert_eq!(http_status(&metrics, "/healthz"), "HTTP/1.1 200 OK");
 
     // SAFETY: kill(2) on a process id read from the run's pids.json, a child of our child.
     assert_eq!(unsafe { libc::kill(victim_pid, libc::SIGKILL) }, 0);
@@ -161,7 +162,7 @@ fn a_killed_actor_is_restarted_and_nothing_is_counted_twice() {
     assert_eq!(pids["actors"][0]["process"], "actor-0-r1", "{pids}");
     assert_eq!(pids["actors"][0]["restarts"], 1, "{pids}");
 
-    let exit = wait_exit(&mut train, train_log);
+    let exit = wait_train_exit(&mut train, train_log);
     let train_log = train_log();
     assert!(exit.success(), "dvnav train failed: {train_log}\nlearner:\n{}", log("learner.log"));
     assert!(
@@ -255,29 +256,17 @@ fn learner_under_a_supervisor(out: &Path) -> String {
     wait_for("the learner's address file", Duration::from_secs(60), || {
         out.join("supervised.addr").exists().then_some(())
     });
-    let metrics = std::fs::read_to_string(out.join("metrics.addr")).unwrap();
+    let metrics = std::fs::read_to_string(out.join("metrics.addr")).unwrap().trim().to_string();
     wait_for("/readyz 200", Duration::from_secs(60), || {
         assert!(learner.try_wait().unwrap().is_none(), "the learner exited: {}", log());
-        (http_get(metrics.trim(), "/readyz") == "HTTP/1.1 200 OK").then_some(())
+        (http_status(&metrics, "/readyz") == "HTTP/1.1 200 OK").then_some(())
     });
-    assert_eq!(http_get(metrics.trim(), "/healthz"), "HTTP/1.1 200 OK");
+    assert_eq!(http_status(&metrics, "/healthz"), "HTTP/1.1 200 OK");
     // SAFETY: kill(2) on our own child.
     assert_eq!(unsafe { libc::kill(learner.id() as i32, libc::SIGTERM) }, 0);
     let status = learner.wait().unwrap();
     assert!(status.success(), "{}", log());
     log()
-}
-
-/// One HTTP/1.1 GET; returns the whole reply (empty when the server is gone).
-fn http_get_body(addr: &str, path: &str) -> String {
-    let get = || -> std::io::Result<String> {
-        let mut sock = std::net::TcpStream::connect(addr)?;
-        write!(sock, "GET {path} HTTP/1.1\r\nHost: x\r\n\r\n")?;
-        let mut reply = String::new();
-        sock.read_to_string(&mut reply)?;
-        Ok(reply)
-    };
-    get().unwrap_or_default()
 }
 
 /// Hangs are named: an actor process frozen with SIGSTOP keeps its connection open and sends
@@ -299,23 +288,16 @@ fn a_frozen_actor_is_named_within_one_heartbeat() {
     let mut train = spawn_train(dir.path(), &config, &out, &["--progress-every-s", "5"]);
     let learner_log =
         || std::fs::read_to_string(out.join("logs").join("learner.log")).unwrap_or_default();
-    let pids = wait_for("pids.json", Duration::from_secs(60), || read_json(&out.join("pids.json")));
-    let frozen = &pids["actors"][1];
-    assert_eq!(frozen["process"], "actor-1", "{pids}");
-    let frozen_pid = frozen["pid"].as_i64().unwrap() as i32;
-    let addr = std::fs::read_to_string(out.join("learner.addr")).unwrap();
-    let metrics = std::fs::read_to_string(out.join("metrics.addr")).unwrap();
-    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
-    let mut client =
-        rt.block_on(LearnerClient::connect(format!("http://{}", addr.trim()))).unwrap();
-    let mut status = || rt.block_on(client.status(StatusRequest {})).unwrap().into_inner();
+    let frozen_pid = actor_pid(&out, 1, "actor-1");
+    let (mut learner, metrics) = Learner::attach(&out);
+    let mut status = || learner.status();
     let batches_of = |s: &dvnav_proto::StatusReply, name: &str| {
         s.actors.iter().find(|a| a.actor_name == name).map_or(0, |a| a.batches)
     };
     wait_for("actor-1 streaming", Duration::from_secs(60), || {
         (batches_of(&status(), "actor-1") >= 3).then_some(())
     });
-    let readyz = || http_get_body(metrics.trim(), "/readyz");
+    let readyz = || http_get(&metrics, "/readyz");
     assert!(!readyz().contains("stalled:"), "a healthy run names nothing: {}", readyz());
 
     // SAFETY: kill(2) on a process id read from the run's pids.json, a child of our child.
@@ -376,7 +358,7 @@ fn a_frozen_actor_is_named_within_one_heartbeat() {
         "the log names it too: {log}"
     );
 
-    let exit = wait_exit(&mut train, learner_log);
+    let exit = wait_train_exit(&mut train, learner_log);
     assert!(exit.success(), "{}", learner_log());
     let s = read_json(&out.join("run_summary.json")).unwrap();
     assert_eq!(s["transitions_accounted"], true, "{s}");
@@ -403,18 +385,14 @@ fn restarts_back_off_and_stop_at_the_limit() {
     let train_log = || std::fs::read_to_string(dir.path().join("train.log")).unwrap_or_default();
     // Kills actor-0's current process once it runs as `process`, returns its pid.
     let kill = |process: &str| {
-        let pid = wait_for(process, Duration::from_secs(60), || {
-            let pids = read_json(&out.join("pids.json"))?;
-            let a = &pids["actors"][0];
-            (a["process"] == process).then(|| a["pid"].as_i64().unwrap() as i32)
-        });
+        let pid = actor_pid(&out, 0, process);
         // SAFETY: kill(2) on a process id read from the run's pids.json, a child of our child.
         assert_eq!(unsafe { libc::kill(pid, libc::SIGKILL) }, 0);
     };
     for process in ["actor-0", "actor-0-r1", "actor-0-r2"] {
         kill(process);
     }
-    let exit = wait_exit(&mut train, train_log);
+    let exit = wait_train_exit(&mut train, train_log);
     let log = train_log();
     assert_eq!(exit.code(), Some(1), "{log}");
     assert!(log.contains("not restarting it: --max-actor-restarts 2 reached"), "{log}");

@@ -3,10 +3,13 @@
 
 use dvnav_common::episode_log::{check_file, read_episodes};
 use serde_json::Value;
-use std::io::{Read, Write};
+use std::io::Read;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::process::{Command, Stdio};
+use std::time::Duration;
+use support::{KillOnDrop, http_get, wait_for};
+
+mod support;
 
 const DVNAV: &str = env!("CARGO_BIN_EXE_dvnav");
 
@@ -43,19 +46,9 @@ every_nth_episode = 1
 episodes_per_file = 4
 "#;
 
-/// Kills the child on drop, so a failing test leaves no process behind.
-struct Killed(Child);
-
-impl Drop for Killed {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn spawn(args: &[&str], log: &Path) -> Killed {
+fn spawn(args: &[&str], log: &Path) -> KillOnDrop {
     let log = std::fs::File::create(log).unwrap();
-    Killed(
+    KillOnDrop(
         Command::new(DVNAV)
             .args(args)
             .env("RUST_LOG", "info")
@@ -65,18 +58,6 @@ fn spawn(args: &[&str], log: &Path) -> Killed {
             .spawn()
             .unwrap(),
     )
-}
-
-/// Waits for `cond` up to `limit`, polling every 20 ms.
-fn wait_for<T>(limit: Duration, what: &str, mut cond: impl FnMut() -> Option<T>) -> T {
-    let deadline = Instant::now() + limit;
-    loop {
-        if let Some(v) = cond() {
-            return v;
-        }
-        assert!(Instant::now() < deadline, "timed out waiting for {what}");
-        std::thread::sleep(Duration::from_millis(20));
-    }
 }
 
 fn mcap_files(dir: &Path) -> Vec<PathBuf> {
@@ -111,7 +92,7 @@ fn sigkill_leaves_rotated_files_whole_and_the_open_files_complete_episodes_reada
         ],
         &dir.path().join("learner.log"),
     );
-    let addr = wait_for(Duration::from_secs(60), "the learner to listen", || {
+    let addr = wait_for("the learner to listen", Duration::from_secs(60), || {
         std::fs::read_to_string(&addr_file).ok()
     });
     let mut actor = spawn(
@@ -131,7 +112,7 @@ fn sigkill_leaves_rotated_files_whole_and_the_open_files_complete_episodes_reada
     // the actor mid-way through its next episode.
     let logs = run.join("mcap/victim");
     let before =
-        wait_for(Duration::from_secs(90), "two rotated files and a finished episode", || {
+        wait_for("two rotated files and a finished episode", Duration::from_secs(90), || {
             if let Ok(Some(st)) = actor.0.try_wait() {
                 panic!(
                     "the actor exited early ({st}):\n{}",
@@ -201,16 +182,6 @@ fn sigkill_leaves_rotated_files_whole_and_the_open_files_complete_episodes_reada
     assert_eq!(report["totals"]["finished"].as_u64().unwrap(), rotated.len() as u64);
 }
 
-/// `GET path` on `addr`; the whole response.
-fn http_get(addr: &str, path: &str) -> String {
-    let mut sock = std::net::TcpStream::connect(addr).unwrap();
-    sock.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
-    write!(sock, "GET {path} HTTP/1.1\r\nHost: {addr}\r\n\r\n").unwrap();
-    let mut out = String::new();
-    sock.read_to_string(&mut out).unwrap();
-    out
-}
-
 #[test]
 fn train_serves_prometheus_metrics_while_running_and_writes_metrics_csv() {
     let dir = tempfile::tempdir().unwrap();
@@ -225,7 +196,7 @@ fn train_serves_prometheus_metrics_while_running_and_writes_metrics_csv() {
     )
     .unwrap();
     let out = dir.path().join("run");
-    let mut train = Killed(
+    let mut train = KillOnDrop(
         Command::new(DVNAV)
             .args(["train", "--actors", "1", "--metrics-addr", "127.0.0.1:0", "--config"])
             .arg(&config)
@@ -237,7 +208,7 @@ fn train_serves_prometheus_metrics_while_running_and_writes_metrics_csv() {
             .spawn()
             .unwrap(),
     );
-    let addr = wait_for(Duration::from_secs(60), "metrics.addr", || {
+    let addr = wait_for("metrics.addr", Duration::from_secs(60), || {
         std::fs::read_to_string(out.join("metrics.addr")).ok()
     });
     let addr = addr.trim();
@@ -245,7 +216,7 @@ fn train_serves_prometheus_metrics_while_running_and_writes_metrics_csv() {
     let value = |text: &str, name: &str| -> Option<f64> {
         text.lines().find(|l| l.starts_with(&format!("{name} ")))?.rsplit(' ').next()?.parse().ok()
     };
-    let text = wait_for(Duration::from_secs(120), "updates on /metrics", || {
+    let text = wait_for("updates on /metrics", Duration::from_secs(120), || {
         let r = http_get(addr, "/metrics");
         let (head, body) = r.split_once("\r\n\r\n")?;
         assert!(head.starts_with("HTTP/1.1 200"), "{head}");
@@ -274,7 +245,7 @@ fn train_serves_prometheus_metrics_while_running_and_writes_metrics_csv() {
     // SAFETY: kill(2) on our own child's pid.
     unsafe { libc::kill(train.0.id() as i32, libc::SIGTERM) };
     let status =
-        wait_for(Duration::from_secs(120), "train to stop", || train.0.try_wait().unwrap());
+        wait_for("train to stop", Duration::from_secs(120), || train.0.try_wait().unwrap());
     let mut stderr = String::new();
     train.0.stderr.take().unwrap().read_to_string(&mut stderr).unwrap();
     assert!(status.success(), "{status}: {stderr}");

@@ -10,6 +10,9 @@ use serde_json::Value;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
+use support::{wait_exit, wait_for};
+
+mod support;
 
 const CONFIG: &str = r#"
 [run]
@@ -41,28 +44,6 @@ fn learner(dir: &Path, config: &Path, addr: &str, steps: u64) -> Child {
         .unwrap()
 }
 
-fn wait_for_file(path: &Path) {
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while !path.exists() {
-        assert!(Instant::now() < deadline, "{} never appeared", path.display());
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
-fn wait_exit(child: &mut Child, what: &str, limit: Duration) -> std::process::ExitStatus {
-    let deadline = Instant::now() + limit;
-    loop {
-        if let Some(st) = child.try_wait().unwrap() {
-            return st;
-        }
-        if Instant::now() > deadline {
-            let _ = child.kill();
-            panic!("{what} did not finish within {limit:?}");
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
-
 #[test]
 fn actor_survives_a_killed_learner_and_loses_nothing() {
     let dir = tempfile::tempdir().unwrap();
@@ -73,7 +54,9 @@ fn actor_survives_a_killed_learner_and_loses_nothing() {
 
     let first_dir = dir.path().join("first");
     let mut first = learner(&first_dir, &config, &addr, 1_000_000);
-    wait_for_file(&first_dir.join("addr"));
+    wait_for("the first learner's address file", Duration::from_secs(60), || {
+        first_dir.join("addr").exists().then_some(())
+    });
     let actor_out = dir.path().join("actor");
     let mut actor = Command::new(env!("CARGO_BIN_EXE_dvnav"))
         .args(["actor", "--name", "survivor", "--learner", &format!("http://{addr}"), "--out"])
@@ -103,10 +86,15 @@ fn actor_survives_a_killed_learner_and_loses_nothing() {
 
     let second_dir = dir.path().join("second");
     let mut second = learner(&second_dir, &config, &addr, 600);
-    let actor_status = wait_exit(&mut actor, "the actor", Duration::from_secs(120));
-    let log = std::fs::read_to_string(dir.path().join("actor.log")).unwrap_or_default();
+    let actor_log = || std::fs::read_to_string(dir.path().join("actor.log")).unwrap_or_default();
+    let actor_status = wait_exit(&mut actor, "the actor", Duration::from_secs(120), actor_log);
+    let log = actor_log();
     assert!(actor_status.success(), "actor failed: {log}");
-    assert!(wait_exit(&mut second, "the second learner", Duration::from_secs(60)).success());
+    let second_log =
+        || std::fs::read_to_string(second_dir.with_extension("log")).unwrap_or_default();
+    assert!(
+        wait_exit(&mut second, "the second learner", Duration::from_secs(60), second_log).success()
+    );
 
     let summary: Value = serde_json::from_slice(
         &std::fs::read(actor_out.join("actors/survivor/summary.json")).unwrap(),

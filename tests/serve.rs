@@ -10,10 +10,13 @@ use dvnav_common::policy::{MetaAgent, NavPolicy};
 use dvnav_proto::controller::v1::controller_client::ControllerClient;
 use dvnav_proto::controller::v1::{ActRequest, InfoRequest, SetFootprintRequest};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
+use support::KillOnDrop;
 use tonic::Code;
 use tonic::transport::Channel;
+
+mod support;
 
 fn repo(path: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(path)
@@ -21,7 +24,7 @@ fn repo(path: &str) -> PathBuf {
 
 /// A `dvnav serve` process, killed if a test fails before stopping it.
 struct Server {
-    child: Child,
+    child: KillOnDrop,
     log: PathBuf,
     url: String,
 }
@@ -44,7 +47,7 @@ impl Server {
             .stderr(std::fs::File::create(&log).unwrap())
             .spawn()
             .unwrap();
-        let mut server = Server { child, log, url: String::new() };
+        let mut server = Server { child: KillOnDrop(child), log, url: String::new() };
         let deadline = Instant::now() + Duration::from_secs(60);
         while !addr_file.exists() {
             if let Some(st) = server.child.try_wait().unwrap() {
@@ -98,15 +101,6 @@ impl Server {
                 return done;
             }
             std::thread::sleep(Duration::from_millis(20));
-        }
-    }
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        if self.child.try_wait().ok().flatten().is_none() {
-            let _ = self.child.kill();
-            let _ = self.child.wait();
         }
     }
 }

@@ -10,8 +10,11 @@ use dvnav_proto::learner_client::LearnerClient;
 use dvnav_proto::{RegisterRequest, StatusRequest};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
+use support::{KillOnDrop, wait_exit};
+
+mod support;
 
 const CONFIG: &str = r#"
 [run]
@@ -47,9 +50,9 @@ fn certs(dir: &Path, hosts: &[&str]) -> PathBuf {
     dir.to_path_buf()
 }
 
-/// A child process, killed if the test ends before it does.
+/// A child process, killed if the test ends before it does, and its log.
 struct Proc {
-    child: Child,
+    child: KillOnDrop,
     log: PathBuf,
 }
 
@@ -59,27 +62,8 @@ impl Proc {
     }
 
     fn wait(&mut self, what: &str, limit: Duration) -> std::process::ExitStatus {
-        let deadline = Instant::now() + limit;
-        loop {
-            if let Some(st) = self.child.try_wait().unwrap() {
-                return st;
-            }
-            assert!(
-                Instant::now() < deadline,
-                "{what} still running after {limit:?}:\n{}",
-                self.log()
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    }
-}
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        if self.child.try_wait().ok().flatten().is_none() {
-            let _ = self.child.kill();
-            let _ = self.child.wait();
-        }
+        let log = &self.log;
+        wait_exit(&mut self.child, what, limit, || std::fs::read_to_string(log).unwrap_or_default())
     }
 }
 
@@ -102,7 +86,7 @@ fn learner(out: &Path, listen: &str, extra: &[&str]) -> Proc {
         .stderr(std::fs::File::create(&log).unwrap())
         .spawn()
         .unwrap();
-    let mut p = Proc { child, log };
+    let mut p = Proc { child: KillOnDrop(child), log };
     let deadline = Instant::now() + Duration::from_secs(60);
     while !addr_file.exists() {
         if let Some(st) = p.child.try_wait().unwrap() {
@@ -243,15 +227,17 @@ fn actors_with_the_ca_and_token_train_over_tls_and_others_are_refused() {
     let actor_out = d.join("actor");
     let actor_log = d.join("actor.log");
     let mut actor = Proc {
-        child: dvnav()
-            .args(["actor", "--name", "trusted", "--learner", &format!("http://{addr}")])
-            .args(["--tls-ca", ca.to_str().unwrap(), "--tls-domain", "localhost"])
-            .args(["--token-file", token_file.to_str().unwrap(), "--out"])
-            .arg(&actor_out)
-            .stdout(Stdio::null())
-            .stderr(std::fs::File::create(&actor_log).unwrap())
-            .spawn()
-            .unwrap(),
+        child: KillOnDrop(
+            dvnav()
+                .args(["actor", "--name", "trusted", "--learner", &format!("http://{addr}")])
+                .args(["--tls-ca", ca.to_str().unwrap(), "--tls-domain", "localhost"])
+                .args(["--token-file", token_file.to_str().unwrap(), "--out"])
+                .arg(&actor_out)
+                .stdout(Stdio::null())
+                .stderr(std::fs::File::create(&actor_log).unwrap())
+                .spawn()
+                .unwrap(),
+        ),
         log: actor_log,
     };
     // Transitions arrive over TLS; then the learner dies and another takes its place.
