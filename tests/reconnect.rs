@@ -10,25 +10,9 @@ use serde_json::Value;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
-use support::{wait_exit, wait_for};
+use support::{INGEST_ONLY_CONFIG, wait_exit, wait_for};
 
 mod support;
-
-const CONFIG: &str = r#"
-[run]
-steps = 600
-
-[sac]
-# No updates in this test: ingestion never waits for training.
-learning_starts = 1000000
-
-[actor]
-envs = 2
-batch_transitions = 32
-
-[logging]
-every_nth_episode = 0
-"#;
 
 fn learner(dir: &Path, config: &Path, addr: &str, steps: u64) -> Child {
     Command::new(env!("CARGO_BIN_EXE_dvnav"))
@@ -48,7 +32,7 @@ fn learner(dir: &Path, config: &Path, addr: &str, steps: u64) -> Child {
 fn actor_survives_a_killed_learner_and_loses_nothing() {
     let dir = tempfile::tempdir().unwrap();
     let config = dir.path().join("config.toml");
-    std::fs::write(&config, CONFIG).unwrap();
+    std::fs::write(&config, INGEST_ONLY_CONFIG).unwrap();
     let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
     let addr = format!("127.0.0.1:{port}");
 

@@ -12,25 +12,9 @@ use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
-use support::{KillOnDrop, wait_exit};
+use support::{INGEST_ONLY_CONFIG, KillOnDrop, wait_exit};
 
 mod support;
-
-const CONFIG: &str = r#"
-[run]
-steps = 600
-
-[sac]
-# No updates in this test: ingestion never waits for training.
-learning_starts = 1000000
-
-[actor]
-envs = 2
-batch_transitions = 32
-
-[logging]
-every_nth_episode = 0
-"#;
 
 fn dvnav() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_dvnav"));
@@ -70,7 +54,7 @@ impl Proc {
 /// A `dvnav learner` on `listen` with `extra` flags; returns once it listens.
 fn learner(out: &Path, listen: &str, extra: &[&str]) -> Proc {
     let config = out.with_extension("toml");
-    std::fs::write(&config, CONFIG).unwrap();
+    std::fs::write(&config, INGEST_ONLY_CONFIG).unwrap();
     let addr_file = out.with_extension("addr");
     let _ = std::fs::remove_file(&addr_file);
     let log = out.with_extension("log");

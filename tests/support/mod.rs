@@ -8,6 +8,23 @@ use std::ops::{Deref, DerefMut};
 use std::process::{Child, ExitStatus};
 use std::time::{Duration, Instant};
 
+/// A run of learner and actor processes that only streams transitions: a 600-step budget and
+/// no updates, so ingestion never waits for training (the reconnection tests).
+pub const INGEST_ONLY_CONFIG: &str = r#"
+[run]
+steps = 600
+
+[sac]
+learning_starts = 1000000
+
+[actor]
+envs = 2
+batch_transitions = 32
+
+[logging]
+every_nth_episode = 0
+"#;
+
 /// Polls `f` every 20 ms until it gives a value; fails naming `what` after `limit`.
 pub fn wait_for<T>(what: &str, limit: Duration, mut f: impl FnMut() -> Option<T>) -> T {
     let deadline = Instant::now() + limit;
