@@ -234,11 +234,15 @@ pub async fn run(state: Arc<LearnerState>, timing: Timing, stop: impl Future<Out
     const REPEAT: Duration = Duration::from_secs(60);
     tokio::pin!(stop);
     loop {
-        tokio::select! {
-            _ = ticks.tick() => {}
+        let tick = tokio::select! {
+            tick = ticks.tick() => tick,
             _ = &mut stop => break,
-        }
-        let stalls = watchdog.check(started.elapsed(), &Observation::of(&state));
+        };
+        // The sample's scheduled time, not when this task got to run: with the time it ran, a
+        // sample a little later than the one that saw the last progress would measure just
+        // under `stall_after` three samples on, and the stall would be named a sample late
+        // (a whole heartbeat after the last progress, seen on a busy machine).
+        let stalls = watchdog.check(tick.duration_since(started), &Observation::of(&state));
         let now = Instant::now();
         let mut current = BTreeMap::new();
         for s in &stalls {
