@@ -11,10 +11,10 @@ mod render;
 use clap::Parser;
 
 /// Counts the bytes in use, so `/metrics` and the soak test can tell a leak from the allocator's
-/// high-water mark ([`dvnav_common::alloc_count`]).
+/// high-water mark ([`dvnav_learner::alloc_count`]).
 #[global_allocator]
-static ALLOCATOR: dvnav_common::alloc_count::CountingAllocator =
-    dvnav_common::alloc_count::CountingAllocator;
+static ALLOCATOR: dvnav_learner::alloc_count::CountingAllocator =
+    dvnav_learner::alloc_count::CountingAllocator;
 
 /// Keeps freed tensor buffers in the heap instead of returning them to the kernel.
 ///

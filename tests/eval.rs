@@ -3,8 +3,8 @@
 //! write what they say, and bad input fails with a clear message.
 
 use candle_core::Device;
-use dvnav_common::config::Config;
-use dvnav_common::episode_log::read_episodes;
+use dvnav_config::Config;
+use dvnav_eval::episode_log::read_episodes;
 use dvnav_learner::sac::SacNetworks;
 use serde_json::Value;
 use std::path::Path;
@@ -25,7 +25,7 @@ fn tiny_config() -> Config {
 fn write_checkpoint(dir: &Path, cfg: &Config) {
     std::fs::create_dir_all(dir).unwrap();
     let nets = SacNetworks::new(cfg, 5, &Device::Cpu).unwrap();
-    let bytes = dvnav_common::nets::varmap_to_safetensors(&nets.actor.vars).unwrap();
+    let bytes = dvnav_nav::nets::varmap_to_safetensors(&nets.actor.vars).unwrap();
     std::fs::write(dir.join("policy.safetensors"), bytes).unwrap();
     std::fs::write(dir.join("config.toml"), cfg.to_toml_string()).unwrap();
 }

@@ -1,7 +1,7 @@
 //! Seeing a run from outside, end to end with real processes: episode logs survive an actor
 //! killed with SIGKILL, and a running `dvnav train` serves its metrics over HTTP.
 
-use dvnav_common::episode_log::{check_file, read_episodes};
+use dvnav_eval::episode_log::{check_file, read_episodes};
 use serde_json::Value;
 use std::io::Read;
 use std::path::{Path, PathBuf};

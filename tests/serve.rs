@@ -5,8 +5,8 @@
 //! over TLS, only clients that trust the server's CA are answered; SIGTERM stops the server
 //! cleanly.
 
-use dvnav_common::dvst::{Dvst, VariedRobot};
-use dvnav_common::policy::{MetaAgent, NavPolicy};
+use dvnav_nav::dvst::{Dvst, VariedRobot};
+use dvnav_nav::policy::{MetaAgent, NavPolicy};
 use dvnav_proto::controller::v1::controller_client::ControllerClient;
 use dvnav_proto::controller::v1::{ActRequest, InfoRequest, SetFootprintRequest};
 use std::path::{Path, PathBuf};
@@ -271,7 +271,7 @@ async fn a_hung_client_does_not_keep_the_server_from_stopping() {
 /// are not.
 #[tokio::test]
 async fn over_tls_a_client_with_the_ca_is_answered_and_a_plaintext_one_is_not() {
-    use dvnav_common::tls::{ClientTlsFiles, endpoint};
+    use dvnav_tls::{ClientTlsFiles, endpoint};
     let dir = tempfile::tempdir().unwrap();
     for name in ["certs", "other"] {
         let out = Command::new(env!("CARGO_BIN_EXE_dvnav"))
@@ -309,7 +309,7 @@ async fn over_tls_a_client_with_the_ca_is_answered_and_a_plaintext_one_is_not() 
     // Another CA: the handshake fails.
     let other = trusting(file("other", "ca.pem")).load().unwrap();
     let e = endpoint(&https, other.as_ref()).unwrap().connect().await.expect_err("another CA");
-    let text = dvnav_common::tls::error_chain(&e);
+    let text = dvnav_tls::error_chain(&e);
     assert!(text.contains("invalid peer certificate: UnknownIssuer"), "{text}");
     // The trusted client is still answered.
     assert_eq!(client.info(InfoRequest {}).await.unwrap().into_inner().scan_beams, 540);

@@ -2,7 +2,7 @@
 //! machine, a few thousand environment steps, real gRPC over loopback, real SAC updates, real
 //! MCAP files. It checks the run's bookkeeping, not learning progress.
 
-use dvnav_common::episode_log::read_episodes;
+use dvnav_eval::episode_log::read_episodes;
 use serde_json::Value;
 use std::collections::BTreeSet;
 use std::process::Command;

@@ -5,9 +5,9 @@
 //! across a learner that is killed and restarted (TLS survives the reconnection). Mutual TLS:
 //! only a client presenting a certificate from the CA is admitted.
 
-use dvnav_common::tls::{ClientTlsFiles, endpoint};
 use dvnav_proto::learner_client::LearnerClient;
 use dvnav_proto::{RegisterRequest, StatusRequest};
+use dvnav_tls::{ClientTlsFiles, endpoint};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -104,10 +104,8 @@ async fn register(url: &str, tls: &ClientTlsFiles, token: Option<&str>) -> Resul
 
 async fn try_register(url: &str, tls: &ClientTlsFiles, token: Option<&str>) -> Result<u32, String> {
     let ep = endpoint(url, tls.load().unwrap().as_ref()).unwrap();
-    let channel = ep
-        .connect()
-        .await
-        .map_err(|e| format!("connect: {}", dvnav_common::tls::error_chain(&e)))?;
+    let channel =
+        ep.connect().await.map_err(|e| format!("connect: {}", dvnav_tls::error_chain(&e)))?;
     let mut client = LearnerClient::new(channel);
     let mut req = tonic::Request::new(RegisterRequest {
         actor_name: "probe".into(),
@@ -119,7 +117,7 @@ async fn try_register(url: &str, tls: &ClientTlsFiles, token: Option<&str>) -> R
     }
     match client.register(req).await {
         Ok(r) => Ok(r.into_inner().actor_id),
-        Err(s) => Err(format!("{:?}: {}", s.code(), dvnav_common::tls::error_chain(&s))),
+        Err(s) => Err(format!("{:?}: {}", s.code(), dvnav_tls::error_chain(&s))),
     }
 }
 

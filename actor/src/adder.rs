@@ -8,8 +8,8 @@
 //! moving, so the watchdog can name one that stopped within a heartbeat (and the learner sees
 //! its transitions sooner).
 
-use dvnav_common::core::{Adder, EpisodeStats, TransitionBatch};
-use dvnav_common::obs::ACTION_DIM;
+use dvnav_link::core::{Adder, EpisodeStats, TransitionBatch};
+use dvnav_sim::obs::ACTION_DIM;
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
 

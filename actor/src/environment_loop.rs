@@ -7,12 +7,13 @@
 
 use crate::episode_logger::EpisodeSelector;
 use candle_core::{Device, Tensor};
-use dvnav_common::config::Config;
-use dvnav_common::control::{action_to_velocity, pid_velocity, velocity_to_action};
-use dvnav_common::core::{Adder, EpisodeStats, Outcome, VariableSource, score};
-use dvnav_common::obs::{ACTION_DIM, GOAL_ANGLE, GOAL_DISTANCE};
-use dvnav_common::sim::{Room, VecEnv};
-use dvnav_common::weights::PolicyHandle;
+use dvnav_config::Config;
+use dvnav_link::core::{Adder, EpisodeStats, VariableSource};
+use dvnav_nav::control::{action_to_velocity, pid_velocity, velocity_to_action};
+use dvnav_nav::weights::PolicyHandle;
+use dvnav_sim::obs::{ACTION_DIM, GOAL_ANGLE, GOAL_DISTANCE};
+use dvnav_sim::{Outcome, score};
+use dvnav_sim::{Room, VecEnv};
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, StandardNormal};
 use std::collections::HashMap;
@@ -291,7 +292,7 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
                         seed: self.seed,
                         footprint: format!("circle r={}", env.robot_radius()),
                         mu: 1.0,
-                        outcome: outcome.to_proto() as i32,
+                        outcome: dvnav_link::wire::outcome_to_proto(outcome) as i32,
                         steps: stats.steps,
                         episode_return: env.episode_return(),
                         score: score(outcome, stats.steps, self.cfg.env.max_steps),
@@ -374,8 +375,8 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use dvnav_common::core::{TransitionBatch, Variables};
-    use dvnav_common::nets::{Actor, init_seeded, varmap_to_safetensors};
+    use dvnav_link::core::{TransitionBatch, Variables};
+    use dvnav_nav::nets::{Actor, init_seeded, varmap_to_safetensors};
 
     /// Collects everything in memory.
     #[derive(Default)]
@@ -479,7 +480,7 @@ mod tests {
         cfg.logging.episodes_per_file = 1;
         let tmp = tempfile::tempdir().unwrap();
         let dir = tmp.path().join("mcap");
-        let meta = dvnav_common::episode_log::LogMetadata::default();
+        let meta = dvnav_eval::episode_log::LogMetadata::default();
         let selector = EpisodeSelector::create(&dir, "t", meta, &cfg).unwrap().unwrap();
         // Before the first episode begins: the directory is now a file.
         std::fs::remove_dir_all(&dir).unwrap();
@@ -623,10 +624,10 @@ mod tests {
         assert!(episodes >= 10, "{episodes}");
         assert!((episodes..=episodes + 3).contains(&seen.len()), "{} radii", seen.len());
         // The learner's wire validation takes these observations at the config's length.
-        let msg = dvnav_common::wire::batch_to_proto(&b, 0, 0);
-        let back = dvnav_common::wire::batch_from_proto(msg.clone(), cfg.obs_dim()).unwrap();
+        let msg = dvnav_link::wire::batch_to_proto(&b, 0, 0);
+        let back = dvnav_link::wire::batch_from_proto(msg.clone(), cfg.obs_dim()).unwrap();
         assert_eq!(back.observations, b.observations);
-        assert!(dvnav_common::wire::batch_from_proto(msg, 544).is_err());
+        assert!(dvnav_link::wire::batch_from_proto(msg, 544).is_err());
     }
 
     #[test]
@@ -644,7 +645,7 @@ mod tests {
         let (c, _) = run(false, 80, 22);
         let enc = |x: &TransitionBatch| {
             use prost::Message;
-            dvnav_common::wire::batch_to_proto(x, 0, 0).encode_to_vec()
+            dvnav_link::wire::batch_to_proto(x, 0, 0).encode_to_vec()
         };
         assert_eq!(enc(&a), enc(&b));
         assert_ne!(enc(&a), enc(&c));

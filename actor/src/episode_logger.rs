@@ -1,9 +1,9 @@
 //! Which episodes an actor writes to MCAP, and the glue from environment state to log records.
-//! The writing itself is [`dvnav_common::episode_log::EpisodeLogger`].
+//! The writing itself is [`dvnav_eval::episode_log::EpisodeLogger`].
 
-use dvnav_common::config::Config;
-use dvnav_common::episode_log::{EpisodeLogger, EpisodeStart, LogMetadata, StepLog};
-use dvnav_common::sim::NavEnv;
+use dvnav_config::Config;
+use dvnav_eval::episode_log::{EpisodeLogger, EpisodeStart, LogMetadata, StepLog};
+use dvnav_sim::NavEnv;
 use std::path::Path;
 
 /// Logs every Nth episode of an actor (N = `logging.every_nth_episode`). An MCAP logger

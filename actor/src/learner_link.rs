@@ -9,9 +9,9 @@
 //! taking batches from its adder, so the environment loop waits instead of buffering without
 //! limit, and retries with exponential backoff (100 ms doubling to 5 s) for as long as it takes.
 
-use dvnav_common::config::Config;
-use dvnav_common::core::{TransitionBatch, Variables};
-use dvnav_common::wire::batch_to_proto;
+use dvnav_config::Config;
+use dvnav_link::core::{TransitionBatch, Variables};
+use dvnav_link::wire::batch_to_proto;
 use dvnav_proto as pb;
 use dvnav_proto::MAX_MESSAGE_BYTES;
 use pb::learner_client::LearnerClient;
@@ -61,9 +61,9 @@ impl tonic::service::Interceptor for AuthInterceptor {
 pub type Client = LearnerClient<InterceptedService<Channel, AuthInterceptor>>;
 
 /// The learner's endpoint; over TLS with `tls`, or for an `https://` URL (see
-/// [`dvnav_common::tls::endpoint`]).
+/// [`dvnav_tls::endpoint`]).
 fn endpoint(url: &str, tls: Option<&ClientTlsConfig>) -> anyhow::Result<Endpoint> {
-    Ok(dvnav_common::tls::endpoint(url, tls)
+    Ok(dvnav_tls::endpoint(url, tls)
         .map_err(|e| anyhow::anyhow!("learner address {url:?}: {e:#}"))?
         .connect_timeout(Duration::from_secs(5))
         // Windows sized for ~0.5 MB batches and ~1 MB weights, as on the learner's side.
@@ -95,7 +95,7 @@ pub async fn connect(
         match endpoint.connect().await {
             Ok(c) => return make_client(c, token),
             Err(e) if Instant::now() + backoff < deadline => {
-                let error = dvnav_common::tls::error_chain(&e);
+                let error = dvnav_tls::error_chain(&e);
                 tracing::debug!(%url, %error, ?backoff, "learner not reachable yet; retrying");
                 tokio::time::sleep(backoff).await;
                 backoff = (backoff * 2).min(MAX_BACKOFF);
@@ -103,7 +103,7 @@ pub async fn connect(
             Err(e) => anyhow::bail!(
                 "cannot reach the learner at {} within {timeout:?}: {}",
                 endpoint.uri(),
-                dvnav_common::tls::error_chain(&e)
+                dvnav_tls::error_chain(&e)
             ),
         }
     }
@@ -397,12 +397,12 @@ pub async fn run_link(
             let channel = match ep.connect().await {
                 Ok(c) => c,
                 Err(e) => {
-                    tracing::debug!(error = %dvnav_common::tls::error_chain(&e), "learner not reachable; retrying");
+                    tracing::debug!(error = %dvnav_tls::error_chain(&e), "learner not reachable; retrying");
                     continue;
                 }
             };
             let Ok(mut c) = make_client(channel, opts.token.as_deref()) else { break None };
-            let tls = dvnav_common::tls::dials_tls(&opts.url, opts.tls.as_ref());
+            let tls = dvnav_tls::dials_tls(&opts.url, opts.tls.as_ref());
             match register(&mut c, &opts.name, tls).await {
                 Ok(reg) => break Some((c, reg)),
                 Err(e) => tracing::debug!(error = %e, "re-registration failed; retrying"),

@@ -6,7 +6,7 @@
 //!
 //! # Layout (Acme's vocabulary)
 //! - [`environment_loop`]: [`EnvironmentLoop`], reset/step/observe over a `VecEnv`; generic
-//!   over the [`dvnav_common::core::Adder`] and [`dvnav_common::core::VariableSource`] seams.
+//!   over the [`dvnav_link::core::Adder`] and [`dvnav_link::core::VariableSource`] seams.
 //! - [`adder`]: [`adder::BatchingAdder`], transitions into bounded batches for the stream.
 //! - [`variable_client`]: [`variable_client::VariableClient`], the newest weights and stage.
 //! - [`episode_logger`]: which episodes go to MCAP.

@@ -7,7 +7,7 @@ use crate::episode_logger::EpisodeSelector;
 pub use crate::learner_link::connect;
 use crate::learner_link::{LinkCounters, LinkOptions, register, run_link};
 use crate::variable_client::VariableClient;
-use dvnav_common::episode_log::LogMetadata;
+use dvnav_eval::episode_log::LogMetadata;
 use serde::Serialize;
 use std::future::Future;
 use std::path::PathBuf;
@@ -27,7 +27,7 @@ pub struct ActorOptions {
     pub out_dir: PathBuf,
     /// Shared token, if the learner requires one.
     pub token: Option<String>,
-    /// TLS for the learner connection (`--tls-ca`; see [`dvnav_common::tls`]): with it an
+    /// TLS for the learner connection (`--tls-ca`; see [`dvnav_tls`]): with it an
     /// `http://` URL is dialled as `https://`.
     pub tls: Option<tonic::transport::ClientTlsConfig>,
     /// How long to keep trying to reach the learner at start-up.
@@ -72,7 +72,7 @@ pub async fn run(
     let mut client =
         connect(&opts.learner_url, opts.tls.as_ref(), opts.token.as_deref(), opts.connect_timeout)
             .await?;
-    let tls = dvnav_common::tls::dials_tls(&opts.learner_url, opts.tls.as_ref());
+    let tls = dvnav_tls::dials_tls(&opts.learner_url, opts.tls.as_ref());
     let reg = register(&mut client, &opts.name, tls).await?;
     let cfg = reg.config.clone();
     let actor_id = reg.actor_id;

@@ -1,7 +1,7 @@
 //! The actor's [`VariableSource`]: a background task follows the learner's `Variables` stream
 //! and keeps the newest value; the environment loop reads it without blocking.
 
-use dvnav_common::core::{VariableSource, Variables};
+use dvnav_link::core::{VariableSource, Variables};
 use std::sync::Arc;
 use tokio::sync::watch;
 

@@ -4,8 +4,8 @@
 use crate::replay::{Batch, ObsCodec, ReplayBuffer};
 use crate::sac::{SacLearner, SacNetworks};
 use candle_core::{Device, Tensor};
-use dvnav_common::config::Config;
-use dvnav_common::core::TransitionBatch;
+use dvnav_config::Config;
+use dvnav_link::core::TransitionBatch;
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 use std::time::Instant;
@@ -145,8 +145,8 @@ pub struct ReplayBench {
 /// driven by the PID controller with noise, batched as an actor batches them) and times
 /// insertion and sampling.
 pub fn replay(cfg: &Config, capacity: usize, batch: usize) -> anyhow::Result<ReplayBench> {
-    use dvnav_common::control::{pid_velocity, velocity_to_action};
-    use dvnav_common::sim::{Room, VecEnv};
+    use dvnav_nav::control::{pid_velocity, velocity_to_action};
+    use dvnav_sim::{Room, VecEnv};
     let n_envs = 16;
     let room = Room::builtin("env0")?;
     let seeds: Vec<u64> = (0..n_envs as u64).collect();
@@ -162,7 +162,7 @@ pub fn replay(cfg: &Config, capacity: usize, batch: usize) -> anyhow::Result<Rep
     while made < capacity {
         let commands: Vec<(f64, f64)> = (0..n_envs)
             .map(|i| {
-                let o = dvnav_common::obs::ObsView::with_layout(
+                let o = dvnav_sim::obs::ObsView::with_layout(
                     &obs[i * d..(i + 1) * d],
                     cfg.obs_layout(),
                 );

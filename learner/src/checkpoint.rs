@@ -239,7 +239,7 @@ mod tests {
     use crate::sac::SacNetworks;
     use crate::state::LearnerState;
     use candle_core::Device;
-    use dvnav_common::config::Config;
+    use dvnav_config::Config;
 
     fn learner(seed: u64) -> SacLearner {
         let cfg = Config::default();

@@ -3,7 +3,7 @@
 //! Warm-up (PID) episodes and episodes reported from another stage do not count: the rule
 //! measures the learned policy in the current room.
 
-use dvnav_common::config::CurriculumConfig;
+use dvnav_config::CurriculumConfig;
 use std::collections::VecDeque;
 
 /// A stage change, for logs and the run summary.

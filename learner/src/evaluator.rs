@@ -15,14 +15,14 @@
 //! same episodes. Random episodes are not logged to MCAP (about 8 MB per evaluation at the
 //! default 10 per room); the routes are (about 1 MB).
 
-use dvnav_common::config::Config;
-use dvnav_common::episode_log::LogMetadata;
-use dvnav_common::eval::{
+use dvnav_config::Config;
+use dvnav_eval::episode_log::LogMetadata;
+use dvnav_eval::{
     EvalLogger, RoomSummary, RunOptions, TRAINING_ROUTE, TaskKind, room_summaries, run_tasks,
     training_tasks,
 };
-use dvnav_common::policy::MetaAgent;
-use dvnav_common::sim::Room;
+use dvnav_nav::policy::MetaAgent;
+use dvnav_sim::Room;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{self, SyncSender, TrySendError};
@@ -298,7 +298,7 @@ mod tests {
 
     fn fresh_policy(cfg: &Config) -> Vec<u8> {
         let nets = crate::sac::SacNetworks::new(cfg, 3, &Device::Cpu).unwrap();
-        dvnav_common::nets::varmap_to_safetensors(&nets.actor.vars).unwrap()
+        dvnav_nav::nets::varmap_to_safetensors(&nets.actor.vars).unwrap()
     }
 
     #[test]
@@ -335,8 +335,7 @@ mod tests {
             let s: f64 = c[4].parse().unwrap();
             assert!((-1.0..=1.0).contains(&s), "{l}");
         }
-        let logged =
-            dvnav_common::episode_log::read_episodes(&dir.path().join("mcap/eval")).unwrap();
+        let logged = dvnav_eval::episode_log::read_episodes(&dir.path().join("mcap/eval")).unwrap();
         assert!(!logged.is_empty());
         assert!(logged.iter().all(|r| r.summary.actor == "eval"));
         assert!(logged.iter().any(|r| r.summary.policy_version == 3 && r.summary.stage == 0));

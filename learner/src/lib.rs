@@ -21,6 +21,7 @@
 //! - [`mod@run`]: a whole learner process, for `dvnav learner` and `dvnav train`.
 //! - [`watchdog`]: names the component that stopped making progress (`dvnav_stalled`).
 
+pub mod alloc_count;
 pub mod bench;
 pub mod checkpoint;
 pub mod curriculum;

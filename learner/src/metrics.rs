@@ -15,7 +15,8 @@
 //!   and once the run is finished; [`LearnerState::readiness`]).
 
 use crate::state::{LearnerState, Readiness, StatusSnapshot};
-use dvnav_common::core::{Outcome, TransitionBatch};
+use dvnav_link::core::TransitionBatch;
+use dvnav_sim::Outcome;
 use serde::Serialize;
 use std::collections::{BTreeMap, VecDeque};
 use std::fmt::Write as _;
@@ -729,9 +730,9 @@ async fn write_response(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use dvnav_common::config::Config;
-    use dvnav_common::core::EpisodeStats;
-    use dvnav_common::wire;
+    use dvnav_config::Config;
+    use dvnav_link::core::EpisodeStats;
+    use dvnav_link::wire;
 
     fn config() -> Config {
         let mut cfg = Config::default();

@@ -32,7 +32,7 @@ pub fn release_free_memory() -> bool {
 pub struct ProcessMemory {
     /// Resident set size (`/proc/self/statm`), bytes.
     pub resident_bytes: Option<u64>,
-    /// Bytes allocated and not freed ([`dvnav_common::alloc_count`]; `None` in a process that
+    /// Bytes allocated and not freed ([`crate::alloc_count`]; `None` in a process that
     /// does not install its counting allocator, such as a test binary).
     pub heap_in_use_bytes: Option<u64>,
 }
@@ -40,10 +40,7 @@ pub struct ProcessMemory {
 impl ProcessMemory {
     /// Reads it now.
     pub fn read() -> Self {
-        Self {
-            resident_bytes: resident(),
-            heap_in_use_bytes: dvnav_common::alloc_count::in_use_bytes(),
-        }
+        Self { resident_bytes: resident(), heap_in_use_bytes: crate::alloc_count::in_use_bytes() }
     }
 }
 

@@ -6,7 +6,7 @@ use crate::service::LearnerService;
 use crate::state::{LearnerState, StatusSnapshot};
 use crate::trainer;
 use candle_core::Device;
-use dvnav_common::config::Config;
+use dvnav_config::Config;
 use serde::Serialize;
 use std::future::Future;
 use std::path::PathBuf;
@@ -34,7 +34,7 @@ pub struct LearnerOptions {
     pub metrics_listener: Option<Arc<std::net::TcpListener>>,
     /// Where the networks train (`--device`): the CPU, or a CUDA GPU.
     pub device: Device,
-    /// Serve gRPC over TLS (`--tls-cert`, `--tls-key`; see [`dvnav_common::tls`]).
+    /// Serve gRPC over TLS (`--tls-cert`, `--tls-key`; see [`dvnav_tls`]).
     pub tls: Option<tonic::transport::ServerTlsConfig>,
 }
 

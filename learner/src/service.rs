@@ -2,7 +2,7 @@
 //! [`LearnerError`] to status codes in one place. No training logic lives here.
 
 use crate::state::{LearnerError, LearnerState, StatusSnapshot};
-use dvnav_common::core::Variables;
+use dvnav_link::core::Variables;
 use dvnav_proto as pb;
 use pb::learner_server::Learner;
 use std::pin::Pin;
@@ -58,13 +58,13 @@ impl LearnerService {
     }
 
     fn authorize<T>(&self, req: &Request<T>) -> Result<(), Status> {
-        let presented = dvnav_common::auth::bearer_token(req.metadata());
+        let presented = dvnav_tls::auth::bearer_token(req.metadata());
         self.state.authorize(presented).map_err(Status::from)
     }
 }
 
 /// The HTTP/2 server for the learner service, over TLS with `tls` (`--tls-cert`, see
-/// [`dvnav_common::tls`]). Flow-control windows are sized for ~0.5 MB batches and ~1 MB weight
+/// [`dvnav_tls`]). Flow-control windows are sized for ~0.5 MB batches and ~1 MB weight
 /// messages (with the 64 KiB defaults every 64 KiB of a message waits for a window update);
 /// keepalive pings notice an actor whose machine vanished.
 pub fn transport_server(
@@ -159,7 +159,7 @@ impl Learner for LearnerService {
             obs_spec: Some(pb::ObservationSpec {
                 scan_beams: cfg.env.lidar.beams as u32,
                 obs_dim: cfg.obs_dim() as u32,
-                action_dim: dvnav_common::obs::ACTION_DIM as u32,
+                action_dim: dvnav_sim::obs::ACTION_DIM as u32,
             }),
             actor_seed: reg.actor_seed,
             run_id: self.state.run_id().to_string(),

@@ -6,10 +6,11 @@ use crate::curriculum::{Curriculum, StageChange};
 use crate::rate_limiter::RateLimiter;
 use crate::replay::{Batch, ObsCodec, ReplayBuffer};
 use crate::variable_source::VariableSource;
-use dvnav_common::config::Config;
-use dvnav_common::core::{Outcome, Variables};
-use dvnav_common::wire::{self, WireError};
+use dvnav_config::Config;
+use dvnav_link::core::Variables;
+use dvnav_link::wire::{self, WireError};
 use dvnav_proto as pb;
+use dvnav_sim::Outcome;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -298,7 +299,7 @@ impl LearnerState {
 
     /// Checks the shared token, when one is configured.
     pub fn authorize(&self, presented: Option<&str>) -> Result<(), LearnerError> {
-        if dvnav_common::auth::token_accepted(self.token.as_deref(), presented) {
+        if dvnav_tls::auth::token_accepted(self.token.as_deref(), presented) {
             Ok(())
         } else {
             Err(LearnerError::Unauthenticated)
@@ -712,7 +713,7 @@ impl LearnerState {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use dvnav_common::core::TransitionBatch;
+    use dvnav_link::core::TransitionBatch;
 
     fn small_config() -> Config {
         let mut cfg = Config::default();
@@ -732,7 +733,7 @@ mod tests {
         for _ in 0..n {
             b.push(&vec![1.0; d], [0.0, 0.0], 0.5, &vec![1.0; d], false, false, 1);
         }
-        b.episodes.push(dvnav_common::core::EpisodeStats {
+        b.episodes.push(dvnav_link::core::EpisodeStats {
             env_index: 0,
             stage: 0,
             room: "env0".into(),

@@ -2,7 +2,7 @@
 //! VariableSource). Backed by a `watch` channel: a slow actor skips straight to the newest
 //! version instead of queueing old ones.
 
-use dvnav_common::core::{self, Variables};
+use dvnav_link::core::{self, Variables};
 use std::sync::Arc;
 use tokio::sync::watch;
 

@@ -404,7 +404,7 @@ mod tests {
     /// a heartbeat, not before 0.6.
     #[tokio::test(start_paused = true)]
     async fn the_task_names_a_stuck_trainer_within_one_heartbeat() {
-        let mut cfg = dvnav_common::config::Config::default();
+        let mut cfg = dvnav_config::Config::default();
         cfg.sac.learning_starts = 0;
         let state = Arc::new(LearnerState::new(cfg, "r".into(), None, vec![]));
         // Transitions in make updates owed; nobody trains.

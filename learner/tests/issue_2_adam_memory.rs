@@ -8,7 +8,7 @@
 //! (~7 MB per update at batch 128). Fixed by detaching in `sac::optim::Adam::step`.
 
 use candle_core::Device;
-use dvnav_common::config::Config;
+use dvnav_config::Config;
 use dvnav_learner::replay::Batch;
 use dvnav_learner::sac::{SacLearner, SacNetworks};
 

@@ -1,10 +1,10 @@
 //! The learner's gRPC service over a real loopback socket: status codes for bad requests,
 //! acknowledgements for good batches, and a shutdown through a oneshot, never a sleep.
 
-use dvnav_common::config::Config;
-use dvnav_common::core::TransitionBatch;
+use dvnav_config::Config;
 use dvnav_learner::service::LearnerService;
 use dvnav_learner::state::LearnerState;
+use dvnav_link::core::TransitionBatch;
 use dvnav_proto::learner_client::LearnerClient;
 use dvnav_proto::{PROTOCOL_VERSION, RegisterRequest, StatusRequest, VariablesRequest};
 use std::sync::Arc;
@@ -104,8 +104,8 @@ async fn good_batches_are_acknowledged_and_malformed_ones_rejected_and_counted()
     let mut c = s.client().await;
     let id = c.register(register("a", PROTOCOL_VERSION)).await.unwrap().into_inner().actor_id;
     let cfg = s.state.config().clone();
-    let good = dvnav_common::wire::batch_to_proto(&batch(&cfg, 5), id, 0);
-    let mut bad = dvnav_common::wire::batch_to_proto(&batch(&cfg, 3), id, 1);
+    let good = dvnav_link::wire::batch_to_proto(&batch(&cfg, 5), id, 0);
+    let mut bad = dvnav_link::wire::batch_to_proto(&batch(&cfg, 3), id, 1);
     bad.observations[7] = f32::NAN;
 
     let mut acks = c.transitions(tokio_stream::iter(vec![good, bad])).await.unwrap().into_inner();
@@ -120,7 +120,7 @@ async fn good_batches_are_acknowledged_and_malformed_ones_rejected_and_counted()
     assert_eq!(st.replay_size, 5, "the malformed batch never reached the replay buffer");
 
     // A batch from an actor that never registered.
-    let stranger = dvnav_common::wire::batch_to_proto(&batch(&cfg, 1), 42, 0);
+    let stranger = dvnav_link::wire::batch_to_proto(&batch(&cfg, 1), 42, 0);
     let mut acks = c.transitions(tokio_stream::iter(vec![stranger])).await.unwrap().into_inner();
     assert_eq!(acks.message().await.unwrap_err().code(), Code::InvalidArgument);
     s.shutdown().await;
@@ -164,7 +164,7 @@ async fn random_batches_are_refused_and_the_learner_keeps_serving() {
     let mut refused = 0;
     let mut inserted = 0u64;
     for seq in 0..60u64 {
-        let mut m = dvnav_common::wire::batch_to_proto(&batch(&cfg, 2), id, seq);
+        let mut m = dvnav_link::wire::batch_to_proto(&batch(&cfg, 2), id, seq);
         match rng.random_range(0..6) {
             0 => m.count = rng.random(),
             1 => m.observations.truncate(rng.random_range(0..2 * d)),
@@ -190,7 +190,7 @@ async fn random_batches_are_refused_and_the_learner_keeps_serving() {
     assert_eq!(st.replay_size, inserted, "only valid batches reached the replay buffer");
     assert_eq!(st.transitions_received, inserted);
     // Still serving.
-    let ok = dvnav_common::wire::batch_to_proto(&batch(&cfg, 1), id, 1_000);
+    let ok = dvnav_link::wire::batch_to_proto(&batch(&cfg, 1), id, 1_000);
     let mut acks = c.transitions(tokio_stream::iter(vec![ok])).await.unwrap().into_inner();
     assert_eq!(acks.message().await.unwrap().unwrap().accepted, 1);
     s.shutdown().await;
@@ -212,7 +212,7 @@ async fn a_batch_waiting_when_its_actor_dies_is_dropped_uncounted() {
     let (tx, rx) = tokio::sync::mpsc::channel(4);
     let mut acks =
         c.transitions(tokio_stream::wrappers::ReceiverStream::new(rx)).await.unwrap().into_inner();
-    let proto = |n, seq| dvnav_common::wire::batch_to_proto(&batch(&cfg, n), id, seq);
+    let proto = |n, seq| dvnav_link::wire::batch_to_proto(&batch(&cfg, n), id, seq);
     tx.send(proto(5, 0)).await.unwrap();
     assert_eq!(acks.message().await.unwrap().unwrap().accepted, 5);
     tx.send(proto(4, 1)).await.unwrap();
@@ -271,7 +271,7 @@ async fn an_oversized_message_is_refused_and_the_learner_keeps_serving() {
     let id = c.register(register("a", PROTOCOL_VERSION)).await.unwrap().into_inner().actor_id;
     // Just over 1 MiB: n transitions of 2 × obs_dim four-byte floats.
     let n = 1 + (1 << 20) / (8 * cfg.obs_dim());
-    let huge = dvnav_common::wire::batch_to_proto(&batch(&cfg, n), id, 0);
+    let huge = dvnav_link::wire::batch_to_proto(&batch(&cfg, n), id, 0);
     let mut acks = c.transitions(tokio_stream::iter(vec![huge])).await.unwrap().into_inner();
     let err = acks.message().await.unwrap_err();
     assert_eq!(err.code(), Code::OutOfRange, "{err}");
@@ -284,7 +284,7 @@ async fn an_oversized_message_is_refused_and_the_learner_keeps_serving() {
         st.rejected_by_reason
     );
     // The learner still serves: a normal batch on a new stream is accepted.
-    let ok = dvnav_common::wire::batch_to_proto(&batch(&cfg, 4), id, 0);
+    let ok = dvnav_link::wire::batch_to_proto(&batch(&cfg, 4), id, 0);
     let mut acks = c.transitions(tokio_stream::iter(vec![ok])).await.unwrap().into_inner();
     assert_eq!(acks.message().await.unwrap().unwrap().accepted, 4);
     let status = c.status(StatusRequest {}).await.unwrap().into_inner();

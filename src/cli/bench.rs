@@ -153,7 +153,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
             }
         }
         BenchWhat::Replay { capacity, batch, json } => {
-            let cfg = dvnav_common::config::Config::default();
+            let cfg = dvnav_config::Config::default();
             let r = dvnav_learner::bench::replay(&cfg, capacity, batch)?;
             if json {
                 println!("{}", serde_json::to_string(&r)?);
@@ -242,8 +242,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
 }
 
 fn bench_env(steps: usize) -> anyhow::Result<serde_json::Value> {
-    use dvnav_common::config::Config;
-    use dvnav_common::sim::{NavEnv, Room};
+    use dvnav_config::Config;
+    use dvnav_sim::{NavEnv, Room};
     use rayon::prelude::*;
     use std::time::Instant;
     let cfg = Config::default();
@@ -298,10 +298,10 @@ fn bench_env(steps: usize) -> anyhow::Result<serde_json::Value> {
 }
 
 async fn bench_transport(transitions: usize, batch: usize) -> anyhow::Result<serde_json::Value> {
-    use dvnav_common::config::Config;
-    use dvnav_common::core::TransitionBatch;
+    use dvnav_config::Config;
     use dvnav_learner::service::LearnerService;
     use dvnav_learner::state::LearnerState;
+    use dvnav_link::core::TransitionBatch;
     use std::sync::Arc;
     use std::time::{Duration, Instant};
 
@@ -344,7 +344,7 @@ async fn bench_transport(transitions: usize, batch: usize) -> anyhow::Result<ser
     }
     let n_batches = transitions.div_ceil(batch);
     let msgs: Vec<_> =
-        (0..n_batches).map(|s| dvnav_common::wire::batch_to_proto(&b, id, s as u64)).collect();
+        (0..n_batches).map(|s| dvnav_link::wire::batch_to_proto(&b, id, s as u64)).collect();
     let t = Instant::now();
     let mut acks = client.transitions(tokio_stream::iter(msgs)).await?.into_inner();
     let mut accepted = 0u64;

@@ -48,7 +48,7 @@ pub fn generate(hosts: &[String], days: u32) -> anyhow::Result<Vec<CertFile>> {
     anyhow::ensure!(!hosts.is_empty(), "at least one --host is needed");
     anyhow::ensure!(days > 0, "--days must be at least 1");
     for h in hosts {
-        dvnav_common::tls::check_server_name(h).map_err(|e| anyhow::anyhow!("--host {e}"))?;
+        dvnav_tls::check_server_name(h).map_err(|e| anyhow::anyhow!("--host {e}"))?;
     }
     let now = time::OffsetDateTime::now_utc();
     // An hour back, for clocks a little behind this one.
@@ -171,7 +171,7 @@ pub fn run(args: CertsArgs) -> anyhow::Result<ExitCode> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use dvnav_common::tls::{ClientTlsFiles, ServerTlsFiles};
+    use dvnav_tls::{ClientTlsFiles, ServerTlsFiles};
 
     #[test]
     fn writes_a_ca_and_certificates_that_load_with_private_keys() {

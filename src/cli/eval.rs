@@ -1,18 +1,18 @@
 //! `dvnav eval`: a checkpoint on the training rooms (routes and random episodes), the gate test
 //! or the dynamic scenario; a table or JSON, and optionally MCAP + CSV and a trajectory figure.
-//! The evaluation itself is [`dvnav_common::eval`].
+//! The evaluation itself is [`dvnav_eval`].
 
 use super::eval_out::{self, Rows};
 use clap::{Args, ValueEnum};
-use dvnav_common::config::Config;
-use dvnav_common::dvst::{Dvst, MetaRobot, VariedRobot};
-use dvnav_common::episode_log::LogMetadata;
-use dvnav_common::eval::{
+use dvnav_config::Config;
+use dvnav_eval::episode_log::LogMetadata;
+use dvnav_eval::{
     EvalLogger, GateGeometry, RunOptions, TRAINING_ROUTE, Task, parse_radii, robot_results,
     robot_tasks, room_summaries, run_tasks, training_tasks,
 };
-use dvnav_common::policy::{MetaAgent, NavPolicy};
-use dvnav_common::sim::{Footprint, Room};
+use dvnav_nav::dvst::{Dvst, MetaRobot, VariedRobot};
+use dvnav_nav::policy::{MetaAgent, NavPolicy};
+use dvnav_sim::{Footprint, Room};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
@@ -146,7 +146,7 @@ fn parse_radii_arg(s: &str) -> Result<Radii, String> {
 /// Reads the policy weights and the configuration of a checkpoint, and checks that they make a
 /// policy.
 fn load_checkpoint(path: &Path) -> anyhow::Result<(Vec<u8>, Config)> {
-    let file = dvnav_common::policy::read_policy(path)?;
+    let file = dvnav_nav::policy::read_policy(path)?;
     MetaAgent::from_policy_file(&file)?;
     Ok((file.weights, file.config))
 }

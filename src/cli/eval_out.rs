@@ -2,8 +2,8 @@
 //! trajectory figure.
 
 use crate::render::trajectories::{RoomPanel, Trajectory, render};
-use dvnav_common::config::EnvConfig;
-use dvnav_common::eval::{EpisodeResult, RobotResult, RoomSummary, Task};
+use dvnav_config::EnvConfig;
+use dvnav_eval::{EpisodeResult, RobotResult, RoomSummary, Task};
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -219,9 +219,9 @@ pub fn draw(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use dvnav_common::core::Outcome;
-    use dvnav_common::eval::{GateRoute, Rates, TaskKind};
-    use dvnav_common::sim::Room;
+    use dvnav_eval::{GateRoute, Rates, TaskKind};
+    use dvnav_sim::Outcome;
+    use dvnav_sim::Room;
 
     fn task(room: &str, radius: Option<f64>) -> Task {
         Task {

@@ -2,10 +2,10 @@
 //! MCAP episode logs; `--json` for each.
 
 use clap::{Args, ValueEnum};
-use dvnav_common::core::Outcome;
-use dvnav_common::episode_log::{
+use dvnav_eval::episode_log::{
     EpisodeRecord, FileCheck, check_files, episode_detail, read_episodes, read_steps, summarize,
 };
+use dvnav_sim::Outcome;
 use serde::Serialize;
 use serde_json::json;
 use std::collections::BTreeSet;
@@ -52,7 +52,7 @@ impl OutcomeArg {
             OutcomeArg::Collision => Outcome::Collision,
             OutcomeArg::Timeout => Outcome::Timeout,
         };
-        Outcome::from_proto(proto) == Some(want)
+        dvnav_link::wire::outcome_from_proto(proto) == Some(want)
     }
 }
 
@@ -120,7 +120,7 @@ struct ListRow<'a> {
 }
 
 fn outcome_name(v: i32) -> &'static str {
-    Outcome::from_proto(v).map_or("unspecified", |o| o.as_str())
+    dvnav_link::wire::outcome_from_proto(v).map_or("unspecified", |o| o.as_str())
 }
 
 fn list_row(r: &EpisodeRecord) -> ListRow<'_> {

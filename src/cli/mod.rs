@@ -160,10 +160,10 @@ pub fn read_token(file: Option<&Path>) -> anyhow::Result<Option<String>> {
 }
 
 /// Loads `--config` or the defaults.
-pub fn load_config(path: Option<&PathBuf>) -> anyhow::Result<dvnav_common::config::Config> {
+pub fn load_config(path: Option<&PathBuf>) -> anyhow::Result<dvnav_config::Config> {
     match path {
-        Some(p) => Ok(dvnav_common::config::Config::load(p)?),
-        None => Ok(dvnav_common::config::Config::default()),
+        Some(p) => Ok(dvnav_config::Config::load(p)?),
+        None => Ok(dvnav_config::Config::default()),
     }
 }
 

@@ -3,9 +3,8 @@
 use super::inspect::EpisodeFilter;
 use crate::render::trajectories::{RoomPanel, Trajectory, render};
 use clap::{Args, Subcommand};
-use dvnav_common::core::Outcome;
-use dvnav_common::episode_log::{EpisodeRecord, read_episodes, read_steps};
-use dvnav_common::sim::Room;
+use dvnav_eval::episode_log::{EpisodeRecord, read_episodes, read_steps};
+use dvnav_sim::Room;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -65,7 +64,7 @@ fn score_series(run: &Path) -> anyhow::Result<BTreeMap<u32, Vec<(f64, f64)>>> {
             path.display()
         )
     })?;
-    let rooms = dvnav_common::config::Config::default().curriculum.rooms;
+    let rooms = dvnav_config::Config::default().curriculum.rooms;
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().unwrap_or("").split(',').collect();
     let col = |name: &str| {
@@ -176,7 +175,7 @@ fn curves(args: CurvesArgs) -> anyhow::Result<ExitCode> {
     );
     let n = args.points.max(2);
     let grid: Vec<f64> = (0..n).map(|i| x_max * i as f64 / (n - 1) as f64).collect();
-    let rooms = dvnav_common::config::Config::default().curriculum.rooms;
+    let rooms = dvnav_config::Config::default().curriculum.rooms;
     let panels: Vec<Panel> = per_stage
         .iter()
         .map(|(k, runs)| Panel {
@@ -267,7 +266,7 @@ fn panels(records: &[EpisodeRecord]) -> anyhow::Result<Vec<RoomPanel>> {
         });
         panel.trajectories.push(Trajectory {
             points: path.iter().map(|p| [p.x, p.y]).collect(),
-            outcome: Outcome::from_proto(s.outcome),
+            outcome: dvnav_link::wire::outcome_from_proto(s.outcome),
             goal: [s.goal_x, s.goal_y],
             radius: footprint_radius(&s.footprint),
         });

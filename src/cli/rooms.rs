@@ -2,8 +2,8 @@
 
 use crate::render::room_map::render_room;
 use clap::{Args, Subcommand};
-use dvnav_common::dvst::VariedRobot;
-use dvnav_common::sim::{Room, RoomSpec};
+use dvnav_nav::dvst::VariedRobot;
+use dvnav_sim::{Room, RoomSpec};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -96,7 +96,7 @@ pub fn run(args: RoomsArgs) -> anyhow::Result<ExitCode> {
         RoomsCommand::List { files, json } => {
             let mut specs = Vec::new();
             if files.is_empty() {
-                specs = dvnav_common::sim::room_file::builtin_specs();
+                specs = dvnav_sim::room_file::builtin_specs();
             }
             for f in &files {
                 specs.extend(Room::from_file(f)?.iter().map(|r| r.spec().clone()));

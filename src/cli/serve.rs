@@ -8,10 +8,10 @@
 //! so tests and `dvnav bench serve` run it on `127.0.0.1:0` and stop it through a oneshot.
 
 use clap::Args;
-use dvnav_common::dvst::controller::{
+use dvnav_nav::dvst::controller::{
     Command, ControllerError, ControllerInfo, DvstController, FootprintState, ModelId, RobotInput,
 };
-use dvnav_common::policy::MetaAgent;
+use dvnav_nav::policy::MetaAgent;
 use dvnav_proto::controller::v1 as pb;
 use pb::controller_server::{Controller, ControllerServer};
 use std::future::Future;
@@ -100,7 +100,7 @@ pub fn load_controller(
     footprint: &Path,
     margin: Option<f64>,
 ) -> anyhow::Result<DvstController<MetaAgent>> {
-    let file = dvnav_common::policy::read_policy(checkpoint)?;
+    let file = dvnav_nav::policy::read_policy(checkpoint)?;
     let agent = MetaAgent::from_policy_file(&file)?;
     let model = model_id(&file)?;
     let cfg = file.config;
@@ -112,7 +112,7 @@ pub fn load_controller(
 
 /// The model's name (its directory) and version: FNV-1a 64 of its weights, so two servers (or
 /// a robot's log and a server) can tell whether they drive with the same policy.
-fn model_id(policy: &dvnav_common::policy::PolicyFile) -> anyhow::Result<ModelId> {
+fn model_id(policy: &dvnav_nav::policy::PolicyFile) -> anyhow::Result<ModelId> {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
     for &b in &policy.weights {
         h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
@@ -196,10 +196,10 @@ struct ControllerService {
 }
 
 impl ControllerService {
-    /// The learner's rule ([`dvnav_common::auth`]).
+    /// The learner's rule ([`dvnav_tls::auth`]).
     fn authorize<T>(&self, req: &Request<T>) -> Result<(), Status> {
-        let presented = dvnav_common::auth::bearer_token(req.metadata());
-        if dvnav_common::auth::token_accepted(self.token.as_deref(), presented) {
+        let presented = dvnav_tls::auth::bearer_token(req.metadata());
+        if dvnav_tls::auth::token_accepted(self.token.as_deref(), presented) {
             Ok(())
         } else {
             Err(Status::unauthenticated("missing or wrong access token"))

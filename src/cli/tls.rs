@@ -1,8 +1,8 @@
 //! The TLS flags of the gRPC servers (`dvnav learner`, `dvnav serve`) and their clients
-//! (`dvnav actor`); the files are read and checked by [`dvnav_common::tls`].
+//! (`dvnav actor`); the files are read and checked by [`dvnav_tls`].
 
 use clap::Args;
-use dvnav_common::tls::{ClientTlsFiles, ServerTlsFiles};
+use dvnav_tls::{ClientTlsFiles, ServerTlsFiles};
 use std::path::PathBuf;
 use tonic::transport::{ClientTlsConfig, ServerTlsConfig};
 

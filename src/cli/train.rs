@@ -17,7 +17,7 @@
 //! stream broke before it was inserted); every acknowledged batch stays counted once.
 
 use clap::Args;
-use dvnav_common::config::Config;
+use dvnav_config::Config;
 use serde_json::{Value, json};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitCode, Stdio};

@@ -3,8 +3,8 @@
 
 use crate::render::dvst::render_dvst;
 use clap::Args;
-use dvnav_common::config::EnvConfig;
-use dvnav_common::dvst::{Reach, VariedRobot, VelocityBounds};
+use dvnav_config::EnvConfig;
+use dvnav_nav::dvst::{Reach, VariedRobot, VelocityBounds};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -31,15 +31,15 @@ pub struct TransferArgs {
 struct Report<'a> {
     /// The footprint file.
     file: String,
-    footprint: &'a dvnav_common::sim::Footprint,
+    footprint: &'a dvnav_sim::Footprint,
     /// The varied robot's reach from the axle along each axis (m).
     reach: Reach,
     /// Its farthest point from the axle centre (m).
     bounding_radius: f64,
-    meta: dvnav_common::dvst::MetaRobot,
+    meta: dvnav_nav::dvst::MetaRobot,
     margin: f64,
     mu: f64,
-    scaled: dvnav_common::dvst::MetaRobot,
+    scaled: dvnav_nav::dvst::MetaRobot,
     v_max: f64,
     omega_max: f64,
     /// Where `v_max` comes from: `file`, or `meta` (the meta agent's, from the default run
@@ -123,7 +123,7 @@ fn print_report(r: &Report) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use dvnav_common::dvst::MetaRobot;
+    use dvnav_nav::dvst::MetaRobot;
     use std::path::Path;
 
     /// Every shipped footprint loads, and its μ is the one its comment states.

@@ -5,8 +5,8 @@
 use super::room::draw_shape;
 use super::room_map::outline;
 use super::{Canvas, INK, Rgba, WHITE, WorldView, text};
-use dvnav_common::dvst::{MetaRobot, VariedRobot, covering_scale};
-use dvnav_common::sim::{Footprint, ObstacleSpec};
+use dvnav_nav::dvst::{MetaRobot, VariedRobot, covering_scale};
+use dvnav_sim::{Footprint, ObstacleSpec};
 
 /// The meta robot's dashed outline.
 pub const META: Rgba = Rgba::hex(0x404040);

@@ -6,7 +6,7 @@
 //! - [`Canvas`]: a pixmap with the few primitives figures use (lines, polygons, discs, text).
 //! - [`WorldView`]: metres in a room's world frame (y up) to pixels (y down) in a panel.
 //! - [`curves`]: learning curves, mean ± std over runs, one panel per room.
-//! - [`room`]: walls and obstacles of a [`dvnav_common::sim::RoomSpec`].
+//! - [`room`]: walls and obstacles of a [`dvnav_sim::RoomSpec`].
 //! - [`trajectories`]: `dvnav plot trajectories`, episode paths over their rooms.
 //! - [`room_map`]: `dvnav rooms show`, a room with its spawn regions, routes, timed obstacles
 //!   and a robot footprint.

@@ -1,7 +1,7 @@
 //! A room's walls and obstacles, filled, in a [`WorldView`].
 
 use super::{Canvas, Rgba, WorldView};
-use dvnav_common::sim::{ObstacleSpec, RoomSpec};
+use dvnav_sim::{ObstacleSpec, RoomSpec};
 
 /// Wall colour.
 pub const WALL: Rgba = Rgba::hex(0x6b6b75);

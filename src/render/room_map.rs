@@ -4,7 +4,7 @@
 
 use super::room::{draw_room, draw_shape};
 use super::{Canvas, INK, Rgba, WHITE, WorldView, text};
-use dvnav_common::sim::{Footprint, ObstacleSpec, Pose2, RoomSpec};
+use dvnav_sim::{Footprint, ObstacleSpec, Pose2, RoomSpec};
 
 /// Spawn-region fill and outline.
 pub const SPAWN: Rgba = Rgba::hex(0x3b7dd8);
@@ -146,7 +146,7 @@ pub fn render_room(
 mod tests {
     use super::super::room::FLOOR;
     use super::*;
-    use dvnav_common::sim::{Route, SpawnRegion, TimedObstacle};
+    use dvnav_sim::{Route, SpawnRegion, TimedObstacle};
 
     #[test]
     fn regions_routes_timed_obstacles_and_footprint_land_where_they_are() {

@@ -3,8 +3,8 @@
 
 use super::room::draw_room;
 use super::{Canvas, INK, Rgba, WHITE, WorldView, text};
-use dvnav_common::core::Outcome;
-use dvnav_common::sim::RoomSpec;
+use dvnav_sim::Outcome;
+use dvnav_sim::RoomSpec;
 
 /// Path colour of successful episodes.
 pub const SUCCESS: Rgba = Rgba::hex(0x2ca02c);

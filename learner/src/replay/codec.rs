@@ -6,7 +6,7 @@
 //! already clamped to `[range_min, range_max]` by the LiDAR and checked finite and non-negative
 //! by the wire validation, so nothing is lost by clamping to `[0, scan_max]` here.
 
-use dvnav_common::config::Config;
+use dvnav_config::Config;
 
 /// The split of an observation into a quantized scan and plain scalars.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -5,7 +5,7 @@
 //! pairs and evicts the next arrivals as the saved one would have.
 
 use super::{ObsCodec, ReplayBuffer};
-use dvnav_common::obs::ACTION_DIM;
+use dvnav_sim::obs::ACTION_DIM;
 use safetensors::Dtype;
 use std::collections::HashMap;
 use std::path::Path;

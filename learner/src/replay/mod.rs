@@ -5,8 +5,8 @@ mod codec;
 mod file;
 
 pub use codec::ObsCodec;
-use dvnav_common::core::TransitionBatch;
-use dvnav_common::obs::ACTION_DIM;
+use dvnav_link::core::TransitionBatch;
+use dvnav_sim::obs::ACTION_DIM;
 use rand::Rng;
 use std::collections::{HashMap, VecDeque};
 
@@ -411,7 +411,7 @@ mod tests {
 
     #[test]
     fn the_papers_buffer_fits_well_under_two_gib() {
-        let cfg = dvnav_common::config::Config::default();
+        let cfg = dvnav_config::Config::default();
         let codec = ObsCodec::for_config(&cfg);
         let r = ReplayBuffer::new(codec, 500_000);
         let per_transition = 2 * 8 + ACTION_DIM * 4 + 4 + 1;

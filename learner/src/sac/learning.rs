@@ -16,8 +16,8 @@ use super::networks::{GaussianPolicy, Owned, QFunction, SacNetworks};
 use super::optim::Adam;
 use crate::replay::Batch;
 use candle_core::{Device, Result, Tensor, Var};
-use dvnav_common::config::SacConfig;
-use dvnav_common::nets::{Actor, Critic};
+use dvnav_config::SacConfig;
+use dvnav_nav::nets::{Actor, Critic};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 
@@ -344,7 +344,7 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
 
     /// The policy's weights as safetensors bytes, for actors and `dvnav eval`.
     pub fn policy_safetensors(&self) -> anyhow::Result<Vec<u8>> {
-        dvnav_common::nets::varmap_to_safetensors(&self.nets.actor.vars)
+        dvnav_nav::nets::varmap_to_safetensors(&self.nets.actor.vars)
     }
 
     /// Metrics of the most recent update.
@@ -366,7 +366,7 @@ mod tests {
         Tensor::new(v, &Device::Cpu).unwrap()
     }
 
-    fn tiny_batch(cfg: &dvnav_common::config::Config) -> Batch {
+    fn tiny_batch(cfg: &dvnav_config::Config) -> Batch {
         let d = cfg.obs_dim();
         let n = 4;
         Batch {
@@ -381,14 +381,14 @@ mod tests {
     }
 
     fn learner(seed: u64) -> SacLearner {
-        let cfg = dvnav_common::config::Config::default();
+        let cfg = dvnav_config::Config::default();
         let nets = SacNetworks::new(&cfg, 3, &Device::Cpu).unwrap();
         SacLearner::new(nets, cfg.sac.clone(), Device::Cpu, seed).unwrap()
     }
 
     #[test]
     fn updates_are_deterministic_given_the_seed_and_move_the_weights() {
-        let cfg = dvnav_common::config::Config::default();
+        let cfg = dvnav_config::Config::default();
         let batch = tiny_batch(&cfg);
         let (mut a, mut b, mut c) = (learner(1), learner(1), learner(2));
         let before = a.policy_safetensors().unwrap();
@@ -409,12 +409,10 @@ mod tests {
     #[test]
     fn radius_input_batches_pass_the_wire_and_the_replay_buffer_into_an_update() {
         use crate::replay::{ObsCodec, ReplayBuffer};
-        use dvnav_common::core::TransitionBatch;
-        use dvnav_common::wire;
-        let cfg = dvnav_common::config::Config::from_toml_str(include_str!(
-            "../../../configs/sac_ri.toml"
-        ))
-        .unwrap();
+        use dvnav_link::core::TransitionBatch;
+        use dvnav_link::wire;
+        let cfg = dvnav_config::Config::from_toml_str(include_str!("../../../configs/sac_ri.toml"))
+            .unwrap();
         let d = cfg.obs_dim();
         assert_eq!(d, 545);
         // Two episodes' worth of steps, each observation ending in its robot's radius.
@@ -448,13 +446,13 @@ mod tests {
         }
         assert_ne!(sac.policy_safetensors().unwrap(), before);
         // A batch of the standard layout does not fit these networks.
-        let short = tiny_batch(&dvnav_common::config::Config::default());
+        let short = tiny_batch(&dvnav_config::Config::default());
         assert!(sac.update(&short).is_err());
     }
 
     #[test]
     fn state_round_trips_into_a_fresh_learner() {
-        let cfg = dvnav_common::config::Config::default();
+        let cfg = dvnav_config::Config::default();
         let batch = tiny_batch(&cfg);
         let mut a = learner(1);
         for _ in 0..2 {

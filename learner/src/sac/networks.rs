@@ -3,15 +3,15 @@
 //!
 //! [`SacLearner`](super::SacLearner) needs only two things of a network, written as two small
 //! traits: a [`GaussianPolicy`] gives the mean and log std of the pre-squash Gaussian, a
-//! [`QFunction`] gives Q(s, a). The navigation CNNs of [`dvnav_common::nets`] are the default
+//! [`QFunction`] gives Q(s, a). The navigation CNNs of [`dvnav_nav::nets`] are the default
 //! instantiation (`SacNetworks` alone means `SacNetworks<Actor, Critic>`); the pendulum test
 //! plugs in plain MLPs.
 
 use candle_core::{DType, Device, Result, Tensor, Var};
 use candle_nn::{VarBuilder, VarMap};
-use dvnav_common::config::Config;
-use dvnav_common::nets::{Actor, Critic, PolicySample, init_seeded, squashed_gaussian};
-use dvnav_common::obs::ACTION_DIM;
+use dvnav_config::Config;
+use dvnav_nav::nets::{Actor, Critic, PolicySample, init_seeded, squashed_gaussian};
+use dvnav_sim::obs::ACTION_DIM;
 
 /// π_θ(a|s) as a tanh-squashed diagonal Gaussian: the network gives μ and log σ, the sample
 /// is a = tanh(μ + σ·ε).

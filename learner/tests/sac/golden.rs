@@ -10,14 +10,14 @@
 //! differences measured were 1e-7 and 2.2e-7).
 
 use candle_core::{Device, Tensor, Var};
-use dvnav_common::config::{Config, SacConfig};
-use dvnav_common::nets::squashed_gaussian;
+use dvnav_config::{Config, SacConfig};
 use dvnav_learner::replay::Batch;
 use dvnav_learner::sac::learning::{
     UpdateNoise, actor_loss, critic_loss, soft_bellman_target, soft_update, temperature_loss,
 };
 use dvnav_learner::sac::networks::Owned;
 use dvnav_learner::sac::{SacLearner, SacNetworks};
+use dvnav_nav::nets::squashed_gaussian;
 
 /// Tolerance of single functions, relative to max(1, |expected|).
 const TOL_FUNCTION: f64 = 1e-6;

@@ -10,7 +10,7 @@
 
 use candle_core::{Device, Module, Result, Tensor};
 use candle_nn::{Linear, VarBuilder};
-use dvnav_common::config::SacConfig;
+use dvnav_config::SacConfig;
 use dvnav_learner::replay::Batch;
 use dvnav_learner::sac::networks::{GaussianPolicy, QFunction};
 use dvnav_learner::sac::{SacLearner, SacNetworks};

@@ -6,13 +6,14 @@
 
 use crate::golden::tiny_config;
 use candle_core::Device;
-use dvnav_common::config::Config;
-use dvnav_common::core::{EpisodeStats, Outcome, TransitionBatch};
+use dvnav_config::Config;
 use dvnav_learner::checkpoint::{self, Checkpoint, CheckpointMeta};
 use dvnav_learner::replay::Batch;
 use dvnav_learner::sac::{SacLearner, SacNetworks};
 use dvnav_learner::state::LearnerState;
 use dvnav_learner::trainer;
+use dvnav_link::core::{EpisodeStats, TransitionBatch};
+use dvnav_sim::Outcome;
 
 fn learner(cfg: &Config, seed: u64) -> SacLearner {
     let nets = SacNetworks::new(cfg, seed, &Device::Cpu).unwrap();
@@ -109,7 +110,7 @@ fn wire_batch(cfg: &Config, n: usize, seq: u64, outcome: Outcome) -> dvnav_proto
         policy_version: 1,
         warmup: false,
     });
-    dvnav_common::wire::batch_to_proto(&b, 0, seq)
+    dvnav_link::wire::batch_to_proto(&b, 0, seq)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 1)]

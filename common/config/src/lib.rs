@@ -1,0 +1,749 @@
+//! # dvnav-config
+//!
+//! The run configuration: one TOML file holds every setting, each with a documented default.
+//!
+//! Loading is strict on purpose: an unknown key is almost always a typo that would otherwise
+//! silently leave a default in force, so it is refused with the key, the line and the keys that
+//! are valid there; a value out of range is refused naming its dotted key and the reason.
+//! `dvnav train` writes the config it used into the run directory, and the learner ships the same
+//! text to every actor at registration, so one file describes the whole run.
+#![warn(missing_docs)]
+
+use dvnav_sim::obs::ObsLayout;
+pub use dvnav_sim::{EnvConfig, LidarConfig, RewardConfig};
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// Everything a run needs, section by section. See `configs/default.toml` for the annotated file.
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    /// Seed and step budget.
+    pub run: RunConfig,
+    /// Simulator, robot, LiDAR and reward constants (design §2).
+    pub env: EnvConfig,
+    /// Network sizes (design §3).
+    pub network: NetConfig,
+    /// Soft Actor-Critic hyper-parameters (design §4).
+    pub sac: SacConfig,
+    /// Replay buffer.
+    pub replay: ReplayConfig,
+    /// Learner process: publishing, checkpointing, throttling.
+    pub learner: LearnerConfig,
+    /// Actor processes: environments per actor and batching.
+    pub actor: ActorConfig,
+    /// PID warm-up episodes at the start of a run.
+    pub warmup: WarmupConfig,
+    /// Room curriculum.
+    pub curriculum: CurriculumConfig,
+    /// MCAP episode logging.
+    pub logging: LoggingConfig,
+}
+
+/// Seed and budget of a run.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct RunConfig {
+    /// Root seed; actors, environments and the learner derive theirs from it.
+    pub seed: u64,
+    /// Environment steps (transitions received by the learner) after which the run stops.
+    pub steps: u64,
+}
+
+impl Default for RunConfig {
+    fn default() -> Self {
+        Self { seed: 1, steps: 500_000 }
+    }
+}
+
+/// Sizes of the default 1D-CNN network (design §3).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct NetConfig {
+    /// Output channels of the first convolution.
+    pub conv1_channels: usize,
+    /// Kernel size of the first convolution.
+    pub conv1_kernel: usize,
+    /// Stride of the first convolution.
+    pub conv1_stride: usize,
+    /// Output channels of the second convolution.
+    pub conv2_channels: usize,
+    /// Kernel size of the second convolution.
+    pub conv2_kernel: usize,
+    /// Stride of the second convolution.
+    pub conv2_stride: usize,
+    /// Width of the scan feature vector after the convolutions.
+    pub scan_features: usize,
+    /// Width of the two hidden fully-connected layers.
+    pub hidden: usize,
+    /// Lower bound of the policy's log standard deviation.
+    pub log_std_min: f64,
+    /// Upper bound of the policy's log standard deviation.
+    pub log_std_max: f64,
+}
+
+impl Default for NetConfig {
+    fn default() -> Self {
+        Self {
+            conv1_channels: 32,
+            conv1_kernel: 20,
+            conv1_stride: 5,
+            conv2_channels: 32,
+            conv2_kernel: 10,
+            conv2_stride: 3,
+            scan_features: 128,
+            hidden: 256,
+            log_std_min: -5.0,
+            log_std_max: 2.0,
+        }
+    }
+}
+
+/// Soft Actor-Critic (Haarnoja et al. 2018/2019) as in the paper's equations.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct SacConfig {
+    /// Discount γ.
+    pub gamma: f64,
+    /// Polyak averaging rate τ of the target critics.
+    pub tau: f64,
+    /// Minibatch size. Default 128 rather than 256: on a 2-core CPU an update at 128 takes
+    /// 0.17 s against 0.28 s at 256 (`dvnav bench learner`), and the learner is the bottleneck.
+    /// `configs/paper.toml` keeps 256.
+    pub batch_size: usize,
+    /// Adam learning rate of the policy.
+    pub actor_lr: f64,
+    /// Adam learning rate of the critics.
+    pub critic_lr: f64,
+    /// Adam learning rate of log α when the temperature is tuned.
+    pub alpha_lr: f64,
+    /// Tune α towards `target_entropy` (true) or keep it at `initial_alpha`.
+    pub autotune_alpha: bool,
+    /// α at the start (and for ever, when not tuned).
+    pub initial_alpha: f64,
+    /// Target entropy for tuning; default −|A| = −2.
+    pub target_entropy: Option<f64>,
+    /// The policy (and α) are updated once every this many critic updates.
+    pub policy_delay: u64,
+    /// Coefficient of the L2 regularization of the policy weights.
+    pub policy_l2: f64,
+    /// Learner updates per environment step (replay ratio), held whatever the number of actors.
+    /// Algorithm 1 of the paper is 1.0 (`configs/paper.toml`); the default 0.25 lets a 2-core
+    /// machine collect four steps per update while the learner is CPU-bound.
+    pub updates_per_env_step: f64,
+    /// Transitions in the replay buffer before the first update.
+    pub learning_starts: u64,
+}
+
+impl Default for SacConfig {
+    fn default() -> Self {
+        Self {
+            gamma: 0.99,
+            tau: 0.005,
+            batch_size: 128,
+            actor_lr: 3e-4,
+            critic_lr: 3e-4,
+            alpha_lr: 3e-4,
+            autotune_alpha: true,
+            initial_alpha: 0.2,
+            target_entropy: None,
+            policy_delay: 2,
+            policy_l2: 1e-3,
+            updates_per_env_step: 0.25,
+            learning_starts: 2_000,
+        }
+    }
+}
+
+/// The replay buffer.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct ReplayConfig {
+    /// Transitions kept; the oldest is overwritten first.
+    pub capacity: usize,
+    /// Write the whole buffer into every checkpoint (`replay.safetensors`), so a resumed run
+    /// samples exactly what it would have sampled. Off by default: a full buffer of the
+    /// default size is about 2 GB per checkpoint; without it a resumed learner waits for
+    /// `sac.learning_starts` fresh transitions before it trains again.
+    pub save_in_checkpoint: bool,
+}
+
+impl Default for ReplayConfig {
+    fn default() -> Self {
+        Self { capacity: 500_000, save_in_checkpoint: false }
+    }
+}
+
+/// The learner process.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct LearnerConfig {
+    /// A new weight version is published to actors every this many updates.
+    pub publish_every_updates: u64,
+    /// A checkpoint is written every this many updates (and at the end of the run).
+    pub checkpoint_every_updates: u64,
+    /// How many environment steps ingestion may run ahead of what the replay ratio allows
+    /// before the learner stops reading transitions (backpressure to the actors).
+    pub max_steps_ahead: u64,
+    /// Threads for the learner's tensor math (0: all cores). Default 1: candle 0.11's CPU
+    /// thread pool synchronizes with spin barriers, and on a small machine shared with actors
+    /// two threads measured 3.4x *slower* than one (958 vs 279 ms per update at batch 256,
+    /// `dvnav bench learner`, 2-core machine).
+    pub threads: usize,
+    /// Every this many updates, evaluate the deterministic policy on the evaluation route of
+    /// every curriculum room plus `eval_episodes` random episodes per room, and append the
+    /// results to `eval.csv` in the run directory (design §4). 0: no evaluation.
+    pub eval_every_updates: u64,
+    /// Random episodes per room in each evaluation during training (0: the routes only).
+    /// The same seeded starts and goals every time, so the rows of `eval.csv` compare.
+    pub eval_episodes: usize,
+    /// The heartbeat interval (s). Actors deliver what they have at least every quarter
+    /// interval, even a part batch, and the learner's watchdog names a component that made
+    /// no progress for a whole interval (ingest, trainer, rate limiter, each actor) within one
+    /// interval of its last progress.
+    pub heartbeat_s: f64,
+    /// `GET /healthz` answers 503 once the trainer or the rate limiter has been stalled this
+    /// long (s), so a supervisor restarts a wedged learner (which resumes from its newest
+    /// checkpoint). 0: never.
+    pub liveness_stall_s: f64,
+}
+
+impl Default for LearnerConfig {
+    fn default() -> Self {
+        Self {
+            publish_every_updates: 50,
+            checkpoint_every_updates: 10_000,
+            max_steps_ahead: 2_000,
+            threads: 1,
+            eval_every_updates: 2_000,
+            eval_episodes: 10,
+            heartbeat_s: 10.0,
+            liveness_stall_s: 300.0,
+        }
+    }
+}
+
+/// An actor process.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct ActorConfig {
+    /// Environments each actor steps side by side (one policy forward pass for all of them).
+    pub envs: usize,
+    /// Transitions per batch sent to the learner.
+    pub batch_transitions: usize,
+    /// Batches that may wait for the network before the environment loop blocks.
+    pub send_queue_batches: usize,
+}
+
+impl Default for ActorConfig {
+    fn default() -> Self {
+        Self { envs: 4, batch_transitions: 128, send_queue_batches: 4 }
+    }
+}
+
+/// The PID controller that acts during the first episodes of a run (design §4).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct WarmupConfig {
+    /// Episodes of the run (all actors together) driven by the PID controller.
+    pub pid_episodes: u64,
+    /// v = clip(kp_linear · x_g, 0, v_max).
+    pub kp_linear: f64,
+    /// ω = clip(kp_angular · y_g, −ω_max, ω_max).
+    pub kp_angular: f64,
+}
+
+impl Default for WarmupConfig {
+    fn default() -> Self {
+        Self { pid_episodes: 100, kp_linear: 1.0, kp_angular: 10.0 }
+    }
+}
+
+/// Rooms of shrinking size; the learner moves the run on when the success rate is high enough.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct CurriculumConfig {
+    /// Built-in room names, easiest first.
+    pub rooms: Vec<String>,
+    /// Episodes of the current stage over which the success rate is measured.
+    pub window: usize,
+    /// Success rate over the window that moves the run to the next stage.
+    pub threshold: f64,
+    /// Share of episodes an actor runs in an earlier room (drawn uniformly among them) once
+    /// the run is past the first stage, so skills of the bigger rooms are not forgotten.
+    pub earlier_share: f64,
+    /// End the run (a clean stop with a final checkpoint) once the last room's success rate
+    /// over a full window reaches the threshold: the "time to skill" runs of the seed sweep.
+    pub stop_when_skilled: bool,
+}
+
+impl Default for CurriculumConfig {
+    fn default() -> Self {
+        Self {
+            rooms: ["env0", "env1", "env2", "env3"].map(String::from).to_vec(),
+            window: 50,
+            threshold: 0.9,
+            earlier_share: 0.0,
+            stop_when_skilled: false,
+        }
+    }
+}
+
+/// Which episodes actors write to MCAP, and how files are cut.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct LoggingConfig {
+    /// Log every Nth training episode of each actor (1: all, 0: none).
+    pub every_nth_episode: u64,
+    /// Start a new MCAP file after this many logged episodes, so a killed actor loses at most
+    /// the open file's tail.
+    pub episodes_per_file: u64,
+    /// Also start a new file once one reaches this size (MiB; 0: no size limit). Episodes never
+    /// straddle files, so a file may pass it by one episode.
+    pub max_file_mb: u64,
+}
+
+impl Default for LoggingConfig {
+    fn default() -> Self {
+        Self { every_nth_episode: 10, episodes_per_file: 20, max_file_mb: 64 }
+    }
+}
+
+/// A configuration value that cannot be used, named by its dotted key.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ConfigError {
+    /// The file the value came from, when it came from a file.
+    pub file: Option<PathBuf>,
+    /// Dotted key, e.g. `sac.gamma`; empty for a syntax error.
+    pub key: String,
+    /// What is wrong and what would be right.
+    pub reason: String,
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match (&self.file, self.key.is_empty()) {
+            (Some(p), false) => write!(f, "{}: `{}`: {}", p.display(), self.key, self.reason),
+            (Some(p), true) => write!(f, "{}: {}", p.display(), self.reason),
+            (None, false) => write!(f, "`{}`: {}", self.key, self.reason),
+            (None, true) => write!(f, "{}", self.reason),
+        }
+    }
+}
+
+impl std::error::Error for ConfigError {}
+
+fn bad(key: &str, reason: impl Into<String>) -> ConfigError {
+    ConfigError { file: None, key: key.to_string(), reason: reason.into() }
+}
+
+impl Config {
+    /// Parses TOML text, refusing unknown keys, and validates every value.
+    pub fn from_toml_str(text: &str) -> Result<Self, ConfigError> {
+        let cfg: Config = toml::from_str(text).map_err(|e| ConfigError {
+            file: None,
+            key: String::new(),
+            reason: e.to_string().trim_end().to_string(),
+        })?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// Reads and validates a config file; errors name the file.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+            file: Some(path.to_path_buf()),
+            key: String::new(),
+            reason: format!("cannot read config file: {e}"),
+        })?;
+        Self::from_toml_str(&text).map_err(|mut e| {
+            e.file = Some(path.to_path_buf());
+            e
+        })
+    }
+
+    /// The config as TOML, every key written out (what `dvnav train` stores in the run).
+    pub fn to_toml_string(&self) -> String {
+        toml::to_string_pretty(self).expect("config serializes to TOML")
+    }
+
+    /// A short stable fingerprint of the config (FNV-1a 64 of its TOML), for log metadata.
+    pub fn hash_hex(&self) -> String {
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        for b in self.to_toml_string().bytes() {
+            h ^= b as u64;
+            h = h.wrapping_mul(0x0100_0000_01b3);
+        }
+        format!("{h:016x}")
+    }
+
+    /// The observation layout: the scan, goal (distance, angle), velocity (v, ω), and the
+    /// robot's radius with `env.radius_input`.
+    pub fn obs_layout(&self) -> ObsLayout {
+        self.env.obs_layout()
+    }
+
+    /// Scalars after the scan: 4, or 5 with `env.radius_input`.
+    pub fn obs_extra(&self) -> usize {
+        self.obs_layout().extra()
+    }
+
+    /// Length of the flat observation vector (544 by default).
+    pub fn obs_dim(&self) -> usize {
+        self.obs_layout().dim()
+    }
+
+    /// Checks every value for range and consistency.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let e = &self.env;
+        positive("env.dt", e.dt)?;
+        positive("env.robot_radius", e.robot_radius)?;
+        if let Some(f) = &e.footprint {
+            f.validate().map_err(|err| bad("env.footprint", format!("{err:#}")))?;
+        }
+        self.validate_radius_range()?;
+        positive("env.v_max", e.v_max)?;
+        positive("env.omega_max", e.omega_max)?;
+        positive("env.goal_tolerance", e.goal_tolerance)?;
+        positive("env.collision_substep", e.collision_substep)?;
+        non_negative("env.min_start_goal_distance", e.min_start_goal_distance)?;
+        non_negative("env.spawn_clearance", e.spawn_clearance)?;
+        if e.max_steps == 0 {
+            return Err(bad("env.max_steps", "must be at least 1"));
+        }
+        let l = &e.lidar;
+        if l.beams < 2 {
+            return Err(bad("env.lidar.beams", "must be at least 2"));
+        }
+        if !(l.fov_deg > 0.0 && l.fov_deg <= 360.0) {
+            return Err(bad(
+                "env.lidar.fov_deg",
+                format!("must be in (0, 360], got {}", l.fov_deg),
+            ));
+        }
+        non_negative("env.lidar.range_min", l.range_min)?;
+        if !(l.range_max.is_finite() && l.range_max > l.range_min) {
+            return Err(bad("env.lidar.range_max", "must be finite and greater than range_min"));
+        }
+        non_negative("env.lidar.noise_std", l.noise_std)?;
+        for (k, v) in [
+            ("env.reward.success", e.reward.success),
+            ("env.reward.collision", e.reward.collision),
+            ("env.reward.progress", e.reward.progress),
+            ("env.reward.time_penalty", e.reward.time_penalty),
+        ] {
+            finite(k, v)?;
+        }
+
+        let n = &self.network;
+        for (k, v) in [
+            ("network.conv1_channels", n.conv1_channels),
+            ("network.conv1_kernel", n.conv1_kernel),
+            ("network.conv1_stride", n.conv1_stride),
+            ("network.conv2_channels", n.conv2_channels),
+            ("network.conv2_kernel", n.conv2_kernel),
+            ("network.conv2_stride", n.conv2_stride),
+            ("network.scan_features", n.scan_features),
+            ("network.hidden", n.hidden),
+        ] {
+            if v == 0 {
+                return Err(bad(k, "must be at least 1"));
+            }
+        }
+        if n.conv_output_len(l.beams).is_none() {
+            return Err(bad(
+                "network.conv1_kernel",
+                format!("the convolutions do not fit a scan of {} beams", l.beams),
+            ));
+        }
+        let log_std_ok =
+            n.log_std_min.is_finite() && n.log_std_max.is_finite() && n.log_std_min < n.log_std_max;
+        if !log_std_ok {
+            return Err(bad("network.log_std_min", "must be below network.log_std_max"));
+        }
+
+        let s = &self.sac;
+        if !(s.gamma > 0.0 && s.gamma < 1.0) {
+            return Err(bad("sac.gamma", format!("must be in (0, 1), got {}", s.gamma)));
+        }
+        if !(s.tau > 0.0 && s.tau <= 1.0) {
+            return Err(bad("sac.tau", format!("must be in (0, 1], got {}", s.tau)));
+        }
+        if s.batch_size == 0 {
+            return Err(bad("sac.batch_size", "must be at least 1"));
+        }
+        positive("sac.actor_lr", s.actor_lr)?;
+        positive("sac.critic_lr", s.critic_lr)?;
+        positive("sac.alpha_lr", s.alpha_lr)?;
+        positive("sac.initial_alpha", s.initial_alpha)?;
+        if let Some(t) = s.target_entropy {
+            finite("sac.target_entropy", t)?;
+        }
+        if s.policy_delay == 0 {
+            return Err(bad("sac.policy_delay", "must be at least 1"));
+        }
+        non_negative("sac.policy_l2", s.policy_l2)?;
+        positive("sac.updates_per_env_step", s.updates_per_env_step)?;
+        if self.replay.capacity < s.batch_size {
+            return Err(bad("replay.capacity", "must hold at least one batch (sac.batch_size)"));
+        }
+        if s.learning_starts < s.batch_size as u64 {
+            return Err(bad("sac.learning_starts", "must be at least sac.batch_size"));
+        }
+
+        let le = &self.learner;
+        if le.publish_every_updates == 0 {
+            return Err(bad("learner.publish_every_updates", "must be at least 1"));
+        }
+        if le.checkpoint_every_updates == 0 {
+            return Err(bad("learner.checkpoint_every_updates", "must be at least 1"));
+        }
+        // Below 0.1 s the watchdog's sampling (a fifth of it) would cost more than it tells.
+        if !(le.heartbeat_s.is_finite() && le.heartbeat_s >= 0.1) {
+            return Err(bad(
+                "learner.heartbeat_s",
+                format!("must be a finite number of seconds ≥ 0.1, got {}", le.heartbeat_s),
+            ));
+        }
+        non_negative("learner.liveness_stall_s", le.liveness_stall_s)?;
+        let a = &self.actor;
+        if a.envs == 0 {
+            return Err(bad("actor.envs", "must be at least 1"));
+        }
+        if a.batch_transitions == 0 {
+            return Err(bad("actor.batch_transitions", "must be at least 1"));
+        }
+        if a.send_queue_batches == 0 {
+            return Err(bad("actor.send_queue_batches", "must be at least 1"));
+        }
+        if le.max_steps_ahead < a.batch_transitions as u64 {
+            return Err(bad(
+                "learner.max_steps_ahead",
+                "must be at least actor.batch_transitions, or ingestion could never proceed",
+            ));
+        }
+        positive("warmup.kp_linear", self.warmup.kp_linear)?;
+        positive("warmup.kp_angular", self.warmup.kp_angular)?;
+        let c = &self.curriculum;
+        if c.rooms.is_empty() {
+            return Err(bad("curriculum.rooms", "needs at least one room"));
+        }
+        if c.window == 0 {
+            return Err(bad("curriculum.window", "must be at least 1"));
+        }
+        if !(c.threshold > 0.0 && c.threshold <= 1.0) {
+            return Err(bad("curriculum.threshold", "must be in (0, 1]"));
+        }
+        if !(0.0..=1.0).contains(&c.earlier_share) {
+            return Err(bad("curriculum.earlier_share", "must be in [0, 1]"));
+        }
+        if self.logging.episodes_per_file == 0 {
+            return Err(bad("logging.episodes_per_file", "must be at least 1"));
+        }
+        if self.run.steps == 0 {
+            return Err(bad("run.steps", "must be at least 1"));
+        }
+        Ok(())
+    }
+}
+
+impl Config {
+    /// `env.radius_input` and `env.radius_range`: a circular robot, a range of positive radii
+    /// that fits every built-in curriculum room, and the radius input when the range holds
+    /// more than one radius.
+    fn validate_radius_range(&self) -> Result<(), ConfigError> {
+        let e = &self.env;
+        if e.radius_input && e.footprint.is_some() {
+            return Err(bad(
+                "env.radius_input",
+                "the radius input describes the circular robot; remove env.footprint",
+            ));
+        }
+        let Some([lo, hi]) = e.radius_range else { return Ok(()) };
+        if !(lo.is_finite() && hi.is_finite() && 0.0 < lo && lo <= hi) {
+            return Err(bad(
+                "env.radius_range",
+                format!("must be [min, max] with 0 < min ≤ max (m), got [{lo}, {hi}]"),
+            ));
+        }
+        if e.footprint.is_some() {
+            return Err(bad(
+                "env.radius_range",
+                "draws circular robots; it cannot be combined with env.footprint",
+            ));
+        }
+        if lo < hi && !e.radius_input {
+            return Err(bad(
+                "env.radius_range",
+                format!(
+                    "robots of radius {lo} to {hi} m need env.radius_input = true (a policy \
+                     that cannot see the radius); for one robot size set env.robot_radius"
+                ),
+            ));
+        }
+        let need = hi + e.spawn_clearance;
+        for spec in dvnav_sim::room_file::builtin_specs() {
+            if self.curriculum.rooms.contains(&spec.name) && need >= spec.side / 2.0 {
+                return Err(bad(
+                    "env.radius_range",
+                    format!(
+                        "a robot of radius {hi} m (+ env.spawn_clearance {c}) does not fit \
+                         room `{name}` ({side}x{side} m)",
+                        c = e.spawn_clearance,
+                        name = spec.name,
+                        side = spec.side
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+impl NetConfig {
+    /// Length and channel count of the second convolution's output for a scan of `beams`, or
+    /// `None` when a kernel is longer than its input.
+    pub fn conv_output_len(&self, beams: usize) -> Option<(usize, usize)> {
+        let l1 = conv_len(beams, self.conv1_kernel, self.conv1_stride)?;
+        let l2 = conv_len(l1, self.conv2_kernel, self.conv2_stride)?;
+        Some((l2, self.conv2_channels))
+    }
+}
+
+fn conv_len(input: usize, kernel: usize, stride: usize) -> Option<usize> {
+    (input >= kernel && stride > 0).then(|| (input - kernel) / stride + 1)
+}
+
+fn finite(key: &str, v: f64) -> Result<(), ConfigError> {
+    if v.is_finite() { Ok(()) } else { Err(bad(key, format!("must be a finite number, got {v}"))) }
+}
+
+fn positive(key: &str, v: f64) -> Result<(), ConfigError> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(bad(key, format!("must be a finite number above 0, got {v}")))
+    }
+}
+
+fn non_negative(key: &str, v: f64) -> Result<(), ConfigError> {
+    if v.is_finite() && v >= 0.0 {
+        Ok(())
+    } else {
+        Err(bad(key, format!("must be a finite number ≥ 0, got {v}")))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_valid_and_round_trip() {
+        let cfg = Config::default();
+        cfg.validate().unwrap();
+        let text = cfg.to_toml_string();
+        assert_eq!(Config::from_toml_str(&text).unwrap(), cfg);
+        assert_eq!(cfg.network.conv_output_len(540), Some((32, 32)));
+    }
+
+    #[test]
+    fn shipped_config_files_parse_and_default_toml_matches_the_defaults() {
+        let default = include_str!("../../../configs/default.toml");
+        assert_eq!(Config::from_toml_str(default).unwrap(), Config::default());
+        let paper = Config::from_toml_str(include_str!("../../../configs/paper.toml")).unwrap();
+        assert_eq!((paper.sac.batch_size, paper.sac.updates_per_env_step), (256, 1.0));
+    }
+
+    #[test]
+    fn the_default_observation_is_the_meta_agents_544() {
+        let cfg = Config::default();
+        assert_eq!((cfg.obs_dim(), cfg.obs_extra()), (544, 4));
+        assert!(!cfg.env.radius_input && cfg.env.radius_range.is_none());
+        // A run config written before the radius keys existed (the shipped meta agent's)
+        // loads with the same layout.
+        let old = Config::from_toml_str("[env]\nrobot_radius = 0.2\n").unwrap();
+        assert_eq!(old, cfg);
+        assert!(!cfg.to_toml_string().contains("radius_range"), "absent stays absent");
+    }
+
+    #[test]
+    fn the_sac_ri_config_is_the_defaults_with_the_radius_input_in_the_12_m_room() {
+        let ri = Config::from_toml_str(include_str!("../../../configs/sac_ri.toml")).unwrap();
+        assert_eq!(ri.curriculum.rooms, ["sac_ri"]);
+        assert!(ri.env.radius_input);
+        assert_eq!(ri.env.radius_range, Some([0.2, 0.5]));
+        assert_eq!((ri.obs_dim(), ri.obs_extra()), (545, 5));
+        let mut back = ri.clone();
+        (back.env.radius_input, back.env.radius_range) = (false, None);
+        back.curriculum.rooms = CurriculumConfig::default().rooms;
+        assert_eq!(back, Config::default(), "everything else is the default");
+        assert_eq!(Config::from_toml_str(&ri.to_toml_string()).unwrap(), ri);
+    }
+
+    #[test]
+    fn bad_radius_settings_are_refused_with_the_reason() {
+        let refused = |text: &str, key: &str, words: &str| {
+            let e = Config::from_toml_str(text).unwrap_err();
+            assert_eq!(e.key, key, "{e}");
+            assert!(e.reason.contains(words), "{e}");
+        };
+        let ri = "[env]\nradius_input = true\n";
+        refused(&format!("{ri}radius_range = [0.5, 0.2]\n"), "env.radius_range", "0 < min ≤ max");
+        refused(&format!("{ri}radius_range = [0.0, 0.2]\n"), "env.radius_range", "0 < min ≤ max");
+        refused(&format!("{ri}radius_range = [0.2, nan]\n"), "env.radius_range", "0 < min ≤ max");
+        refused("[env]\nradius_range = [0.2, 0.5]\n", "env.radius_range", "radius_input = true");
+        // The largest robot must fit every curriculum room (env3 is 5 m).
+        refused(&format!("{ri}radius_range = [0.2, 2.45]\n"), "env.radius_range", "`env3`");
+        let fp = "[env.footprint]\nname = \"c\"\n[[env.footprint.parts]]\nshape = \"circle\"\n\
+                  center = [0.0, 0.0]\nradius = 0.2\n";
+        refused(&format!("{ri}{fp}"), "env.radius_input", "circular robot");
+        refused(
+            &format!("[env]\nradius_range = [0.3, 0.3]\n{fp}"),
+            "env.radius_range",
+            "env.footprint",
+        );
+        // Accepted: one radius without the input, the input without a range, a big robot in
+        // a big room.
+        let one = Config::from_toml_str("[env]\nradius_range = [0.3, 0.3]\n").unwrap();
+        assert_eq!(one.obs_dim(), 544);
+        assert_eq!(Config::from_toml_str(ri).unwrap().obs_dim(), 545);
+        let big = "[env]\nradius_input = true\nradius_range = [0.2, 2.45]\n\
+                   [curriculum]\nrooms = [\"sac_ri\"]\n";
+        Config::from_toml_str(big).unwrap();
+    }
+
+    #[test]
+    fn unknown_key_is_refused_with_its_name() {
+        let err = Config::from_toml_str("[sac]\ngama = 0.9\n").unwrap_err();
+        assert!(err.reason.contains("gama"), "{err}");
+    }
+
+    #[test]
+    fn bad_value_names_the_key() {
+        let err = Config::from_toml_str("[sac]\ngamma = 1.5\n").unwrap_err();
+        assert_eq!(err.key, "sac.gamma");
+        let err = Config::from_toml_str("[env.lidar]\nbeams = 10\n").unwrap_err();
+        assert_eq!(err.key, "network.conv1_kernel");
+    }
+
+    #[test]
+    fn partial_file_keeps_other_defaults() {
+        let cfg = Config::from_toml_str("[run]\nsteps = 10\n").unwrap();
+        assert_eq!(cfg.run.steps, 10);
+        assert_eq!(cfg.sac, SacConfig::default());
+    }
+
+    #[test]
+    fn a_footprint_in_the_run_config_round_trips_and_bad_ones_name_the_key() {
+        let text = "[env.footprint]\nname = \"cart\"\n[[env.footprint.parts]]\nshape = \"box\"\n\
+                    center = [0.1, 0.0]\nhalf_extents = [0.3, 0.2]\n";
+        let cfg = Config::from_toml_str(text).unwrap();
+        let fp = cfg.env.footprint.clone().unwrap();
+        assert!((fp.bounding_radius() - 0.4f64.hypot(0.2)).abs() < 1e-12);
+        assert_eq!(Config::from_toml_str(&cfg.to_toml_string()).unwrap(), cfg);
+        let bad = text.replace("[0.3, 0.2]", "[0.3, -0.2]");
+        assert_eq!(Config::from_toml_str(&bad).unwrap_err().key, "env.footprint");
+    }
+}

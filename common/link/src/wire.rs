@@ -1,0 +1,262 @@
+//! Conversions between the wire types of `dvnav-proto` and the domain types of [`crate::core`].
+//!
+//! Decoding is where untrusted input enters the learner, so [`batch_from_proto`] checks every
+//! length and value and never panics: a batch that fails any check is refused whole and never
+//! reaches the replay buffer.
+
+use crate::core::{EpisodeStats, TransitionBatch};
+use dvnav_proto as pb;
+use dvnav_sim::Outcome;
+use dvnav_sim::obs::ACTION_DIM;
+use std::fmt;
+
+/// Largest |reward| accepted; the task's rewards are bounded by r_s, r_c and the progress term.
+pub const MAX_ABS_REWARD: f32 = 1.0e3;
+/// Largest transition count in one batch.
+pub const MAX_BATCH_TRANSITIONS: usize = 65_536;
+
+/// Why a batch was refused; the message names the field.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WireError {
+    /// The offending field, e.g. `observations`.
+    pub field: &'static str,
+    /// What is wrong with it.
+    pub reason: String,
+}
+
+impl fmt::Display for WireError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "field `{}`: {}", self.field, self.reason)
+    }
+}
+
+impl std::error::Error for WireError {}
+
+fn err(field: &'static str, reason: impl Into<String>) -> WireError {
+    WireError { field, reason: reason.into() }
+}
+
+fn check_len<T>(field: &'static str, v: &[T], expect: usize) -> Result<(), WireError> {
+    if v.len() == expect {
+        Ok(())
+    } else {
+        Err(err(field, format!("has {} values, expected {expect}", v.len())))
+    }
+}
+
+fn check_finite(field: &'static str, v: &[f32]) -> Result<(), WireError> {
+    match v.iter().position(|x| !x.is_finite()) {
+        None => Ok(()),
+        Some(i) => Err(err(field, format!("value {i} is {} (NaN/Inf refused)", v[i]))),
+    }
+}
+
+/// Encodes a batch for the wire.
+pub fn batch_to_proto(
+    batch: &TransitionBatch,
+    actor_id: u32,
+    sequence: u64,
+) -> pb::TransitionBatch {
+    pb::TransitionBatch {
+        actor_id,
+        sequence,
+        count: batch.len() as u32,
+        observations: batch.observations.clone(),
+        actions: batch.actions.clone(),
+        rewards: batch.rewards.clone(),
+        next_observations: batch.next_observations.clone(),
+        terminated: batch.terminated.clone(),
+        truncated: batch.truncated.clone(),
+        policy_versions: batch.policy_versions.clone(),
+        episodes: batch.episodes.iter().map(episode_to_proto).collect(),
+    }
+}
+
+/// The wire and log enum value of an outcome.
+pub fn outcome_to_proto(o: Outcome) -> pb::Outcome {
+    match o {
+        Outcome::Success => pb::Outcome::Success,
+        Outcome::Collision => pb::Outcome::Collision,
+        Outcome::Timeout => pb::Outcome::Timeout,
+    }
+}
+
+/// An outcome from its wire and log enum value; `None` for unspecified or unknown values.
+pub fn outcome_from_proto(v: i32) -> Option<Outcome> {
+    match pb::Outcome::try_from(v).ok()? {
+        pb::Outcome::Success => Some(Outcome::Success),
+        pb::Outcome::Collision => Some(Outcome::Collision),
+        pb::Outcome::Timeout => Some(Outcome::Timeout),
+        pb::Outcome::Unspecified => None,
+    }
+}
+
+/// Encodes episode statistics.
+pub fn episode_to_proto(e: &EpisodeStats) -> pb::EpisodeStats {
+    pb::EpisodeStats {
+        env_index: e.env_index,
+        stage: e.stage,
+        room: e.room.clone(),
+        outcome: outcome_to_proto(e.outcome) as i32,
+        steps: e.steps,
+        episode_return: e.episode_return,
+        policy_version: e.policy_version,
+        warmup: e.warmup,
+    }
+}
+
+/// Decodes and validates a batch of `obs_dim`-long observations. Checks: count within bounds,
+/// every array of the right length, all floats finite, actions in [−1, 1], |reward| ≤
+/// [`MAX_ABS_REWARD`], no transition both terminated and truncated, episode outcomes known.
+pub fn batch_from_proto(
+    msg: pb::TransitionBatch,
+    obs_dim: usize,
+) -> Result<TransitionBatch, WireError> {
+    let n = msg.count as usize;
+    if n > MAX_BATCH_TRANSITIONS {
+        return Err(err("count", format!("{n} exceeds the limit of {MAX_BATCH_TRANSITIONS}")));
+    }
+    check_len("observations", &msg.observations, n * obs_dim)?;
+    check_len("next_observations", &msg.next_observations, n * obs_dim)?;
+    check_len("actions", &msg.actions, n * ACTION_DIM)?;
+    check_len("rewards", &msg.rewards, n)?;
+    check_len("terminated", &msg.terminated, n)?;
+    check_len("truncated", &msg.truncated, n)?;
+    check_len("policy_versions", &msg.policy_versions, n)?;
+    check_finite("observations", &msg.observations)?;
+    check_finite("next_observations", &msg.next_observations)?;
+    check_finite("actions", &msg.actions)?;
+    check_finite("rewards", &msg.rewards)?;
+    if let Some(i) = msg.actions.iter().position(|a| a.abs() > 1.0) {
+        return Err(err("actions", format!("value {i} = {} is outside [-1, 1]", msg.actions[i])));
+    }
+    if let Some(i) = msg.rewards.iter().position(|r| r.abs() > MAX_ABS_REWARD) {
+        return Err(err(
+            "rewards",
+            format!("value {i} = {} exceeds ±{MAX_ABS_REWARD}", msg.rewards[i]),
+        ));
+    }
+    if let Some(i) = (0..n).find(|&i| msg.terminated[i] && msg.truncated[i]) {
+        return Err(err("truncated", format!("transition {i} is both terminated and truncated")));
+    }
+    let mut episodes = Vec::with_capacity(msg.episodes.len());
+    for (i, e) in msg.episodes.into_iter().enumerate() {
+        let outcome = outcome_from_proto(e.outcome).ok_or_else(|| {
+            err("episodes", format!("episode {i} has unknown outcome {}", e.outcome))
+        })?;
+        if !e.episode_return.is_finite() {
+            return Err(err("episodes", format!("episode {i} has a non-finite return")));
+        }
+        episodes.push(EpisodeStats {
+            env_index: e.env_index,
+            stage: e.stage,
+            room: e.room,
+            outcome,
+            steps: e.steps,
+            episode_return: e.episode_return,
+            policy_version: e.policy_version,
+            warmup: e.warmup,
+        });
+    }
+    Ok(TransitionBatch {
+        obs_dim,
+        observations: msg.observations,
+        actions: msg.actions,
+        rewards: msg.rewards,
+        next_observations: msg.next_observations,
+        terminated: msg.terminated,
+        truncated: msg.truncated,
+        policy_versions: msg.policy_versions,
+        episodes,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample() -> TransitionBatch {
+        let mut b = TransitionBatch::with_capacity(3, 2);
+        b.push(&[1.0, 2.0, 3.0], [0.5, -0.5], 0.1, &[1.5, 2.5, 3.5], false, false, 4);
+        b.push(&[1.5, 2.5, 3.5], [1.0, -1.0], -10.0, &[0.0, 0.0, 0.0], true, false, 4);
+        b.episodes.push(EpisodeStats {
+            env_index: 0,
+            stage: 0,
+            room: "env0".into(),
+            outcome: Outcome::Collision,
+            steps: 2,
+            episode_return: -9.9,
+            policy_version: 4,
+            warmup: false,
+        });
+        b
+    }
+
+    /// Untrusted bytes never panic the decoder: random buffers, truncations and byte flips of
+    /// a valid message either fail to decode or are refused by validation (or are valid).
+    #[test]
+    fn random_and_damaged_messages_never_panic() {
+        use prost::Message;
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(99);
+        let valid = batch_to_proto(&sample(), 1, 0).encode_to_vec();
+        let mut decoded = 0;
+        let mut accepted = 0;
+        for i in 0..20_000 {
+            let bytes: Vec<u8> = match i % 3 {
+                0 => (0..rng.random_range(0..200)).map(|_| rng.random()).collect(),
+                1 => valid[..rng.random_range(0..valid.len())].to_vec(),
+                _ => {
+                    let mut v = valid.clone();
+                    for _ in 0..rng.random_range(1..6) {
+                        let j = rng.random_range(0..v.len());
+                        v[j] = rng.random();
+                    }
+                    v
+                }
+            };
+            if let Ok(msg) = pb::TransitionBatch::decode(bytes.as_slice()) {
+                decoded += 1;
+                if let Ok(b) = batch_from_proto(msg, 3) {
+                    accepted += 1;
+                    // Whatever passes is internally consistent.
+                    assert_eq!(b.observations.len(), b.len() * 3);
+                    assert_eq!(b.next_observations.len(), b.len() * 3);
+                    assert_eq!(b.actions.len(), b.len() * ACTION_DIM);
+                    assert!(b.rewards.iter().all(|r| r.is_finite()));
+                }
+            }
+        }
+        assert!(decoded > 1_000, "the damaged inputs exercised validation ({decoded} decoded)");
+        assert!(accepted < decoded, "validation refused some ({accepted} of {decoded})");
+    }
+
+    #[test]
+    fn round_trips() {
+        let b = sample();
+        assert_eq!(batch_from_proto(batch_to_proto(&b, 1, 0), 3).unwrap(), b);
+    }
+
+    #[test]
+    fn refuses_bad_batches_naming_the_field() {
+        let good = batch_to_proto(&sample(), 1, 0);
+        let mut m = good.clone();
+        m.observations.pop();
+        assert_eq!(batch_from_proto(m, 3).unwrap_err().field, "observations");
+        let mut m = good.clone();
+        m.rewards[0] = f32::NAN;
+        assert_eq!(batch_from_proto(m, 3).unwrap_err().field, "rewards");
+        let mut m = good.clone();
+        m.actions[1] = 1.5;
+        assert_eq!(batch_from_proto(m, 3).unwrap_err().field, "actions");
+        let mut m = good.clone();
+        m.count = 3;
+        assert!(batch_from_proto(m, 3).is_err());
+        let mut m = good.clone();
+        m.episodes[0].outcome = 17;
+        assert_eq!(batch_from_proto(m, 3).unwrap_err().field, "episodes");
+        let mut m = good;
+        m.count = u32::MAX;
+        assert_eq!(batch_from_proto(m, 3).unwrap_err().field, "count");
+    }
+}

@@ -1,0 +1,314 @@
+use super::*;
+use crate::policy::MetaAgent;
+use std::path::Path;
+use std::sync::Arc;
+
+const MODEL: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../models/meta-r0.2");
+const FOOTPRINTS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../footprints");
+
+fn footprint(file: &str) -> String {
+    std::fs::read_to_string(Path::new(FOOTPRINTS).join(file)).unwrap()
+}
+
+fn model_id() -> ModelId {
+    ModelId { name: "test".into(), version: "v-test".into() }
+}
+
+/// A meta policy of 3 beams that counts its calls and answers (0.4 m/s, goal angle) when asked.
+#[derive(Default)]
+struct Counter {
+    calls: Arc<AtomicU64>,
+}
+
+impl NavPolicy for Counter {
+    fn beams(&self) -> usize {
+        3
+    }
+    fn act(&mut self, obs: &[f32]) -> anyhow::Result<(f64, f64)> {
+        self.calls.fetch_add(1, Ordering::SeqCst);
+        Ok((0.4, obs[3 + GOAL_ANGLE] as f64))
+    }
+    fn velocity_bounds(&self) -> (f64, f64) {
+        (0.5, 1.5)
+    }
+}
+
+fn three_beam_config() -> Config {
+    let mut cfg = Config::default();
+    cfg.env.lidar.beams = 3;
+    cfg
+}
+
+fn counter_controller(toml: &str) -> (DvstController<Counter>, Arc<AtomicU64>) {
+    let policy = Counter::default();
+    let calls = policy.calls.clone();
+    let ctl = DvstController::new(policy, &three_beam_config(), model_id(), toml, "t.toml", None)
+        .unwrap();
+    (ctl, calls)
+}
+
+/// A scan of `beams` ranges that varies with `k`, like a robot moving through a room.
+fn scan(beams: usize, k: usize) -> Vec<f32> {
+    (0..beams).map(|i| 0.3 + 4.0 * (1.0 + ((i + 7 * k) as f32 * 0.05).sin())).collect()
+}
+
+#[test]
+fn commands_are_those_of_the_meta_agent_through_dvst() {
+    let (agent, cfg) = MetaAgent::load(Path::new(MODEL)).unwrap();
+    let text = footprint("paper-medium.toml");
+    let ctl =
+        DvstController::new(agent, &cfg, model_id(), &text, "paper-medium.toml", None).unwrap();
+    assert_eq!(ctl.beams(), 540);
+    let info = ctl.info();
+    assert!((info.footprint.mu - 1.85).abs() < 1e-12, "{info:?}");
+    assert_eq!(info.footprint.version, 1);
+    assert_eq!(info.scan_range, [0.02, 10.0]);
+    assert_eq!(info.control_period_s, cfg.env.dt);
+    assert_eq!(info.footprint.bounds, info.meta_bounds, "the file gives no bounds of its own");
+
+    // The same agent wrapped by hand, as `dvnav eval` does.
+    let (agent, _) = MetaAgent::load(Path::new(MODEL)).unwrap();
+    let robot = VariedRobot::from_toml_str(&text, "paper-medium.toml").unwrap();
+    let mut direct = Dvst::new(agent, robot).unwrap().with_scan_range(Some([0.02, 10.0])).unwrap();
+    let mut moved = 0;
+    for k in 0..20 {
+        let s = scan(540, k);
+        let (d, a, v, w) = (0.3 + 0.4 * k as f64, -1.5 + 0.15 * k as f64, 0.02 * k as f64, 0.1);
+        let mut obs = s.clone();
+        obs.extend([d as f32, a as f32, v as f32, w as f32]);
+        let want = direct.act(&obs).unwrap();
+        let input = RobotInput { scan: &s, goal_distance: d, goal_angle: a, v, omega: w };
+        let got = ctl.act(&input).unwrap();
+        assert_eq!((got.v, got.omega), want, "call {k}: bit for bit");
+        assert_eq!((got.mu, got.footprint_version), (ctl.info().footprint.mu, 1));
+        assert_eq!(got.footprint, "paper medium robot");
+        moved += (got.v.abs() > 1e-3 || got.omega.abs() > 1e-3) as usize;
+    }
+    assert!(moved > 10, "the agent drives: {moved} of 20 commands move the robot");
+    assert_eq!(ctl.info().commands, 20);
+}
+
+#[test]
+fn malformed_requests_name_the_field_and_never_reach_the_policy() {
+    let (ctl, calls) =
+        counter_controller("[[parts]]\nshape = \"circle\"\ncenter = [0, 0]\nradius = 0.2\n");
+    let good = [1.0f32, 2.0, 3.0];
+    let ok = RobotInput { scan: &good, goal_distance: 1.0, goal_angle: 0.5, v: 0.1, omega: 0.0 };
+    assert_eq!(ctl.act(&ok).unwrap().v, 0.4);
+    assert_eq!(calls.load(Ordering::SeqCst), 1);
+
+    let field = |input: RobotInput| match ctl.act(&input) {
+        Err(ControllerError::InvalidArgument { field, reason }) => (field, reason),
+        other => panic!("not refused: {other:?}"),
+    };
+    let (f, why) = field(RobotInput { scan: &good[..2], ..ok });
+    assert_eq!(f, "scan");
+    assert!(why.contains("2 ranges") && why.contains("3 beams"), "{why}");
+    let (f, why) = field(RobotInput { scan: &[1.0, 2.0, 3.0, 4.0], ..ok });
+    assert_eq!(f, "scan", "{why}");
+    let (f, why) = field(RobotInput { scan: &[1.0, f32::NAN, f32::NAN], ..ok });
+    assert_eq!(f, "scan[1]");
+    assert!(why.contains("NaN") && why.contains("1 more bad range after it"), "{why}");
+    let (f, why) = field(RobotInput { scan: &[f32::INFINITY, 1.0, 1.0], ..ok });
+    assert_eq!(f, "scan[0]");
+    assert!(why.contains("range_max (10 m)"), "{why}");
+    let (f, why) = field(RobotInput { scan: &[1.0, 1.0, -0.1], ..ok });
+    assert_eq!(f, "scan[2]");
+    assert!(why.contains("negative"), "{why}");
+    for (input, name) in [
+        (RobotInput { goal_distance: -0.5, ..ok }, "goal_distance"),
+        (RobotInput { goal_distance: f64::NAN, ..ok }, "goal_distance"),
+        (RobotInput { goal_angle: f64::INFINITY, ..ok }, "goal_angle"),
+        (RobotInput { v: f64::NAN, ..ok }, "v"),
+        (RobotInput { omega: f64::NEG_INFINITY, ..ok }, "omega"),
+    ] {
+        let (f, why) = field(input);
+        assert_eq!(f, name, "{why}");
+        let e = ControllerError::invalid(f, why);
+        assert!(e.to_string().starts_with(&format!("`{name}`: ")), "{e}");
+    }
+    assert_eq!(calls.load(Ordering::SeqCst), 1, "no malformed request reached the policy");
+    assert_eq!(ctl.info().commands, 1);
+
+    // A goal angle outside [−π, π] is the same direction, wrapped.
+    let turned = ctl.act(&RobotInput { goal_angle: 0.5 + 4.0 * PI, ..ok }).unwrap();
+    assert!((turned.omega - 0.5).abs() < 1e-6, "{turned:?}");
+    let turned = ctl.act(&RobotInput { goal_angle: 1.0 - 2.0 * PI, ..ok }).unwrap();
+    assert!((turned.omega - 1.0).abs() < 1e-6, "{turned:?}");
+}
+
+#[test]
+fn wrapped_angles_keep_their_direction() {
+    assert_eq!(wrap_angle(0.3), 0.3);
+    assert_eq!(wrap_angle(-PI), -PI);
+    assert_eq!(wrap_angle(PI), PI);
+    assert!((wrap_angle(3.0 * PI) - PI).abs() < 1e-12);
+    assert!((wrap_angle(-3.0 * PI) - PI).abs() < 1e-12);
+    for k in -50..50 {
+        let a = k as f64 * 0.7;
+        let w = wrap_angle(a);
+        assert!((-PI..=PI).contains(&w), "{a} -> {w}");
+        assert!((w.sin() - a.sin()).abs() < 1e-9 && (w.cos() - a.cos()).abs() < 1e-9, "{a}");
+    }
+}
+
+#[test]
+fn a_new_footprint_changes_mu_and_a_bad_one_changes_nothing() {
+    let (agent, cfg) = MetaAgent::load(Path::new(MODEL)).unwrap();
+    let ctl =
+        DvstController::new(agent, &cfg, model_id(), &footprint("small-0.15.toml"), "s", None)
+            .unwrap();
+    let s = scan(540, 3);
+    let input = RobotInput { scan: &s, goal_distance: 2.0, goal_angle: 0.4, v: 0.1, omega: 0.0 };
+    let before = ctl.act(&input).unwrap();
+    assert!((before.mu - 0.75).abs() < 1e-12 && before.footprint_version == 1, "{before:?}");
+
+    // It picks up cargo: the 0.5 m circle.
+    let state = ctl.set_footprint_toml(&footprint("circle-0.5.toml")).unwrap();
+    assert!((state.mu - 2.5).abs() < 1e-12, "{state:?}");
+    assert_eq!((state.version, state.scaled), (2, MetaRobot::Circle { radius: 0.5 }));
+    assert_eq!(state.robot.footprint.name, "circle r=0.5");
+    let after = ctl.act(&input).unwrap();
+    assert_eq!((after.mu, after.footprint_version), (state.mu, 2));
+    assert_eq!(after.footprint, "circle r=0.5");
+    assert_ne!((after.v, after.omega), (before.v, before.omega), "the command follows μ");
+
+    // Bad files: refused with the field and the line, and nothing changes.
+    let refused = |text: &str| match ctl.set_footprint_toml(text) {
+        Err(ControllerError::InvalidArgument { field, reason }) => {
+            assert_eq!(field, "footprint_toml");
+            reason
+        }
+        other => panic!("not refused: {other:?}"),
+    };
+    let why =
+        refused("name = \"x\"\n[[parts]]\nshape = \"circle\"\ncenter = [0, 0]\nradius = -1\n");
+    assert!(why.starts_with("line 2: `parts[0]`: "), "{why}");
+    let why = refused("[[parts]\n");
+    assert!(why.contains("line 1"), "{why}");
+    let why = refused("name = \"no parts\"\n");
+    assert!(why.contains("parts"), "{why}");
+    let why = refused(&(footprint("circle-0.5.toml") + "margin = -0.1\n"));
+    assert!(why.contains("`margin`"), "{why}");
+    // A meta robot other than the model's.
+    let why = refused(
+        &(footprint("circle-0.5.toml").replace(
+            "name = \"circle r=0.5\"",
+            "name = \"x\"\n[meta]\nshape = \"circle\"\nradius = 0.3\n",
+        )),
+    );
+    assert!(why.contains("`meta`") && why.contains("trained as a circle r = 0.200 m"), "{why}");
+    let now = ctl.footprint();
+    assert_eq!((now.version, now.robot), (2, state.robot.clone()));
+    assert_eq!(ctl.act(&input).unwrap(), after, "the same command as before the refusals");
+
+    // The model's own meta robot, named in the file, is accepted; the file's margin counts.
+    let named = footprint("paper-medium.toml")
+        .replace("margin = 0.03", "margin = 0.03\n[meta]\nshape = \"circle\"\nradius = 0.2\n");
+    let state = ctl.set_footprint_toml(&named).unwrap();
+    assert!((state.mu - 1.85).abs() < 1e-12 && state.version == 3, "{state:?}");
+}
+
+#[test]
+fn a_forced_margin_holds_for_every_footprint() {
+    let text = "[[parts]]\nshape = \"circle\"\ncenter = [0, 0]\nradius = 0.3\nmargin = 0.2\n";
+    // `margin` after `[[parts]]` belongs to the part, which has no such key: refused.
+    assert!(
+        DvstController::new(Counter::default(), &three_beam_config(), model_id(), text, "m", None)
+            .is_err()
+    );
+    let text = "margin = 0.2\n[[parts]]\nshape = \"circle\"\ncenter = [0, 0]\nradius = 0.3\n";
+    let (own, _) = counter_controller(text);
+    assert!((own.footprint().mu - 2.5).abs() < 1e-12, "the file's margin: (0.3 + 0.2) / 0.2");
+    let forced = DvstController::new(
+        Counter::default(),
+        &three_beam_config(),
+        model_id(),
+        text,
+        "m",
+        Some(0.1),
+    )
+    .unwrap();
+    assert!((forced.footprint().mu - 2.0).abs() < 1e-12, "--margin 0.1: (0.3 + 0.1) / 0.2");
+    let state = forced.set_footprint_toml(&text.replace("0.3", "0.5")).unwrap();
+    assert!((state.mu - 3.0).abs() < 1e-12 && state.robot.margin == 0.1, "{state:?}");
+    assert!(
+        DvstController::new(
+            Counter::default(),
+            &three_beam_config(),
+            model_id(),
+            text,
+            "m",
+            Some(-1.0)
+        )
+        .is_err()
+    );
+}
+
+#[test]
+fn a_model_trained_as_a_rectangle_gives_its_meta_robot() {
+    let mut cfg = three_beam_config();
+    cfg.env.footprint = Some(Footprint {
+        name: "box".into(),
+        parts: vec![dvnav_sim::ObstacleSpec::Box {
+            center: [0.05, 0.0],
+            half_extents: [0.2, 0.15],
+            angle: 0.0,
+        }],
+    });
+    let text = "[[parts]]\nshape = \"circle\"\ncenter = [0, 0]\nradius = 0.3\n";
+    let ctl = DvstController::new(Counter::default(), &cfg, model_id(), text, "r", None).unwrap();
+    // The rectangle reaches 0.25 ahead, 0.15 behind, 0.15 to each side: μ = 0.3 / 0.15.
+    let info = ctl.info();
+    assert!((info.footprint.mu - 2.0).abs() < 1e-12, "{info:?}");
+    assert!(matches!(info.footprint.robot.meta, MetaRobot::Rectangle { .. }));
+}
+
+/// Footprint changes racing with commands: every command is computed wholly with one
+/// footprint, and says which.
+#[test]
+fn footprint_changes_are_atomic_for_concurrent_commands() {
+    let small = "name = \"a\"\n[[parts]]\nshape = \"circle\"\ncenter = [0, 0]\nradius = 0.1\n";
+    let large = "name = \"b\"\n[[parts]]\nshape = \"circle\"\ncenter = [0, 0]\nradius = 0.4\n";
+    let (ctl, _) = counter_controller(small);
+    let ctl = Arc::new(ctl);
+    let changer = {
+        let ctl = ctl.clone();
+        std::thread::spawn(move || {
+            for k in 0..200 {
+                let v = ctl.set_footprint_toml(if k % 2 == 0 { large } else { small }).unwrap();
+                assert_eq!(v.version, k + 2);
+            }
+        })
+    };
+    let readers: Vec<_> = (0..3)
+        .map(|_| {
+            let ctl = ctl.clone();
+            std::thread::spawn(move || {
+                let s = [1.0f32, 1.0, 1.0];
+                let input = RobotInput {
+                    scan: &s,
+                    goal_distance: 1.0,
+                    goal_angle: 0.0,
+                    v: 0.0,
+                    omega: 0.0,
+                };
+                for _ in 0..500 {
+                    let c = ctl.act(&input).unwrap();
+                    // Odd versions are the small robot (μ = 0.5), even ones the large (μ = 2).
+                    let (mu, name) =
+                        if c.footprint_version % 2 == 1 { (0.5, "a") } else { (2.0, "b") };
+                    assert!((c.mu - mu).abs() < 1e-12 && c.footprint == name, "{c:?}");
+                    // Straight ahead at μ · 0.4 m/s, within v_max = 0.5.
+                    assert!((c.v - (mu * 0.4).min(0.5)).abs() < 1e-12, "{c:?}");
+                }
+            })
+        })
+        .collect();
+    changer.join().unwrap();
+    for r in readers {
+        r.join().unwrap();
+    }
+    assert_eq!(ctl.footprint().version, 201);
+    assert_eq!(ctl.info().commands, 1500);
+}

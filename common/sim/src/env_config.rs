@@ -1,0 +1,121 @@
+//! The simulated task's constants: the robot, its LiDAR and the reward (the `[env]` section of a
+//! run's config file; `dvnav_config::Config` composes it with the other sections).
+
+use crate::obs::ObsLayout;
+use serde::{Deserialize, Serialize};
+
+/// Constants of the simulated task (design §2; the paper's values are the defaults).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct EnvConfig {
+    /// Control period ΔT in seconds.
+    pub dt: f64,
+    /// Radius of the circular meta robot in metres (the robot, unless `footprint` is set).
+    pub robot_radius: f64,
+    /// The robot's footprint when it is not the circular meta robot: `[env.footprint]` with
+    /// `[[env.footprint.parts]]` as in a footprint file (README § Rooms). Absent: a disc of
+    /// `robot_radius`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub footprint: Option<crate::Footprint>,
+    /// Append the robot's radius (m) to the observation, after ω: the SAC_RI baseline's extra
+    /// input (`configs/sac_ri.toml`). The policy's and the critics' first fully-connected layer
+    /// take one input more. Needs the circular robot (no `footprint`). A policy trained so is
+    /// driven on the gate with each robot's own radius as the input, not through DVST.
+    pub radius_input: bool,
+    /// `[min, max]` (m): every episode of `NavEnv::reset` draws the circular robot's radius
+    /// uniformly from this range (spawn clearance follows the drawn radius); evaluation routes
+    /// (`NavEnv::reset_to`) drive `robot_radius`. Absent: every episode is `robot_radius`.
+    /// A range of more than one radius needs `radius_input`, so that a checkpoint without the
+    /// radius input was always trained as one robot, the meta robot DVST assumes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius_range: Option<[f64; 2]>,
+    /// Linear velocity bound v_max (m/s); commands lie in [0, v_max].
+    pub v_max: f64,
+    /// Angular velocity bound ω_max (rad/s); commands lie in [-ω_max, ω_max].
+    pub omega_max: f64,
+    /// The goal is reached when the robot's centre is within this distance (m).
+    pub goal_tolerance: f64,
+    /// Episode length limit T_max in control steps (timeout, not a termination).
+    pub max_steps: u32,
+    /// Start and goal are drawn at least this far apart (m).
+    pub min_start_goal_distance: f64,
+    /// Extra free space (m) beyond the footprint required around sampled starts and goals.
+    pub spawn_clearance: f64,
+    /// Longest translation (m) between two collision checks within one control step; keeps a
+    /// fast robot from passing through a thin wall.
+    pub collision_substep: f64,
+    /// The LiDAR.
+    pub lidar: LidarConfig,
+    /// The reward function.
+    pub reward: RewardConfig,
+}
+
+impl Default for EnvConfig {
+    fn default() -> Self {
+        Self {
+            dt: 0.2,
+            robot_radius: 0.2,
+            footprint: None,
+            radius_input: false,
+            radius_range: None,
+            v_max: 0.5,
+            omega_max: std::f64::consts::FRAC_PI_2,
+            goal_tolerance: 0.2,
+            max_steps: 400,
+            min_start_goal_distance: 1.0,
+            spawn_clearance: 0.1,
+            collision_substep: 0.02,
+            lidar: LidarConfig::default(),
+            reward: RewardConfig::default(),
+        }
+    }
+}
+
+/// A planar LiDAR at the robot's axle centre.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct LidarConfig {
+    /// Number of beams, spread evenly over the field of view.
+    pub beams: usize,
+    /// Field of view in degrees, centred straight ahead.
+    pub fov_deg: f64,
+    /// Shortest range reported (m).
+    pub range_min: f64,
+    /// Longest range (m); a beam with no return reads this.
+    pub range_max: f64,
+    /// Standard deviation of Gaussian range noise (m); 0 for exact geometry.
+    pub noise_std: f64,
+}
+
+impl Default for LidarConfig {
+    fn default() -> Self {
+        Self { beams: 540, fov_deg: 270.0, range_min: 0.02, range_max: 10.0, noise_std: 0.0 }
+    }
+}
+
+/// r_s on success, r_c on collision, otherwise c1·(d_t − d_{t+1}) − c2.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct RewardConfig {
+    /// r_s.
+    pub success: f64,
+    /// r_c.
+    pub collision: f64,
+    /// c1: weight of progress towards the goal (per metre).
+    pub progress: f64,
+    /// c2: time penalty per step.
+    pub time_penalty: f64,
+}
+
+impl Default for RewardConfig {
+    fn default() -> Self {
+        Self { success: 10.0, collision: -10.0, progress: 2.0, time_penalty: 0.01 }
+    }
+}
+
+impl EnvConfig {
+    /// The observation layout of environments with these constants.
+    pub fn obs_layout(&self) -> ObsLayout {
+        ObsLayout { beams: self.lidar.beams, radius_input: self.radius_input }
+    }
+}
