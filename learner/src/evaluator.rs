@@ -12,9 +12,10 @@
 //!
 //! **Comparable rows.** The random episodes' starts and goals come from a fixed seed derived
 //! from `run.seed`, so every evaluation of a run (and of runs with the same seed) faces the
-//! same episodes. Random episodes are not logged to MCAP (about 8 MB per evaluation at the
-//! default 10 per room); the routes are (about 1 MB).
+//! same episodes. Random episodes are not logged to MCAP (they are most of an evaluation's
+//! steps, so most of its log); the routes are.
 
+use crate::csv_format::{ser_2_decimals, ser_4_decimals_or_nan};
 use dvnav_config::Config;
 use dvnav_eval::episode_log::LogMetadata;
 use dvnav_eval::{
@@ -23,13 +24,14 @@ use dvnav_eval::{
 };
 use dvnav_nav::policy::MetaAgent;
 use dvnav_sim::Room;
+use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{self, SyncSender, TrySendError};
 use std::thread::JoinHandle;
 use std::time::Instant;
 
-/// Header of `eval.csv`.
+/// Header of `eval.csv`: [`EvalRow`]'s field names.
 pub const EVAL_CSV_HEADER: &str = "updates,env_steps,room,route_completed,score,success_rate,\
 collision_rate,timeout_rate,mean_time_s,episodes,mean_score,route_goals_reached,route_time_s,\
 policy_version,eval_wall_s";
@@ -173,6 +175,11 @@ fn open_logger(cfg: &Config, out: &Path) -> anyhow::Result<EvalLogger> {
     EvalLogger::create(&dir, "eval", "eval", meta, cfg.logging.episodes_per_file)
 }
 
+/// A missing number reads as NaN.
+fn nan() -> f64 {
+    f64::NAN
+}
+
 /// Seed of the evaluation episodes of a run with root seed `seed` (apart from the seeds
 /// actors derive from it).
 pub fn eval_seed(seed: u64) -> u64 {
@@ -209,36 +216,96 @@ pub fn evaluate(
     Ok((room_summaries(&tasks, &results), started.elapsed().as_secs_f64()))
 }
 
-/// One `eval.csv` line per room.
-pub fn csv_rows(snap: &Snapshot, rows: &[RoomSummary], wall_s: f64) -> Vec<String> {
-    let f = |x: f64| if x.is_finite() { format!("{x:.4}") } else { "NaN".into() };
-    rows.iter()
-        .map(|r| {
-            let route = r.route.as_ref();
-            [
-                snap.updates.to_string(),
-                snap.env_steps.to_string(),
-                r.room.clone(),
-                route.map_or(String::new(), |x| x.completed.to_string()),
-                route.map_or("NaN".into(), |x| f(x.score)),
-                f(r.rates.success_rate),
-                f(r.rates.collision_rate),
-                f(r.rates.timeout_rate),
-                f(r.rates.mean_time_s.unwrap_or(f64::NAN)),
-                r.rates.episodes.to_string(),
-                f(r.rates.mean_score),
-                route.map_or(String::new(), |x| x.goals_reached.to_string()),
-                route.map_or("NaN".into(), |x| f(x.time_s)),
-                snap.policy_version.to_string(),
-                format!("{wall_s:.2}"),
-            ]
-            .join(",")
-        })
-        .collect()
+/// One row of `eval.csv`: a room's results at one evaluation. Route fields are empty (or NaN)
+/// for a room without an evaluation route. Read by column name: of an older or hand-made file
+/// only the [`EvalRow::REQUIRED`] columns must be there; a missing number reads as NaN (a
+/// missing count as 0).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EvalRow {
+    /// Learner updates done.
+    #[serde(default)]
+    pub updates: u64,
+    /// Environment steps received.
+    pub env_steps: u64,
+    /// Room name.
+    pub room: String,
+    /// The route was driven to its end.
+    pub route_completed: Option<bool>,
+    /// The paper's score S of the route, in [−1, 1].
+    #[serde(serialize_with = "ser_4_decimals_or_nan")]
+    pub score: f64,
+    /// Share of the random episodes that succeeded.
+    #[serde(serialize_with = "ser_4_decimals_or_nan", default = "nan")]
+    pub success_rate: f64,
+    /// Share that collided.
+    #[serde(serialize_with = "ser_4_decimals_or_nan", default = "nan")]
+    pub collision_rate: f64,
+    /// Share that timed out.
+    #[serde(serialize_with = "ser_4_decimals_or_nan", default = "nan")]
+    pub timeout_rate: f64,
+    /// Mean time of the successful episodes (s).
+    #[serde(serialize_with = "ser_4_decimals_or_nan", default = "nan")]
+    pub mean_time_s: f64,
+    /// Random episodes run.
+    #[serde(default)]
+    pub episodes: u64,
+    /// Mean score of the random episodes.
+    #[serde(serialize_with = "ser_4_decimals_or_nan", default = "nan")]
+    pub mean_score: f64,
+    /// Route goals reached.
+    pub route_goals_reached: Option<u64>,
+    /// Time on the route (s).
+    #[serde(serialize_with = "ser_4_decimals_or_nan", default = "nan")]
+    pub route_time_s: f64,
+    /// Weight version evaluated (0: never published).
+    #[serde(default)]
+    pub policy_version: u64,
+    /// Wall time of the whole evaluation (s).
+    #[serde(serialize_with = "ser_2_decimals", default = "nan")]
+    pub eval_wall_s: f64,
+}
+
+impl EvalRow {
+    /// The row of room `r` in the evaluation of `snap` that took `wall_s`.
+    pub fn of(snap: &Snapshot, r: &RoomSummary, wall_s: f64) -> Self {
+        let route = r.route.as_ref();
+        Self {
+            updates: snap.updates,
+            env_steps: snap.env_steps,
+            room: r.room.clone(),
+            route_completed: route.map(|x| x.completed),
+            score: route.map_or(f64::NAN, |x| x.score),
+            success_rate: r.rates.success_rate,
+            collision_rate: r.rates.collision_rate,
+            timeout_rate: r.rates.timeout_rate,
+            mean_time_s: r.rates.mean_time_s.unwrap_or(f64::NAN),
+            episodes: r.rates.episodes as u64,
+            mean_score: r.rates.mean_score,
+            route_goals_reached: route.map(|x| x.goals_reached as u64),
+            route_time_s: route.map_or(f64::NAN, |x| x.time_s),
+            policy_version: snap.policy_version,
+            eval_wall_s: wall_s,
+        }
+    }
+
+    /// The columns an `eval.csv` must have to be read (the fields without a default).
+    pub const REQUIRED: [&str; 3] = ["env_steps", "room", "score"];
+
+    /// Reads the rows of the `eval.csv` at `path`, by column name; a row that does not parse
+    /// (a torn last line) is skipped.
+    pub fn read(path: &Path) -> anyhow::Result<Vec<EvalRow>> {
+        let mut r = csv::Reader::from_path(path)
+            .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", path.display()))?;
+        let names = r.headers().map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        if let Some(c) = Self::REQUIRED.iter().find(|c| !names.iter().any(|n| n == **c)) {
+            anyhow::bail!("{}: no `{c}` column", path.display());
+        }
+        Ok(r.deserialize().filter_map(Result::ok).collect())
+    }
 }
 
 /// Appends the rows to `path`, writing the header first when the file is new or empty (a
-/// resumed run keeps appending to its file).
+/// resumed run keeps appending to its file). The rows go out in one write.
 pub fn append_csv(
     path: &Path,
     snap: &Snapshot,
@@ -250,16 +317,13 @@ pub fn append_csv(
         .append(true)
         .open(path)
         .map_err(|e| anyhow::anyhow!("cannot open {}: {e}", path.display()))?;
-    let mut text = String::new();
-    if file.metadata()?.len() == 0 {
-        text.push_str(EVAL_CSV_HEADER);
-        text.push('\n');
+    let new = file.metadata()?.len() == 0;
+    let mut w = csv::WriterBuilder::new().has_headers(new).from_writer(Vec::new());
+    for r in rows {
+        w.serialize(EvalRow::of(snap, r, wall_s))?;
     }
-    for line in csv_rows(snap, rows, wall_s) {
-        text.push_str(&line);
-        text.push('\n');
-    }
-    file.write_all(text.as_bytes())?;
+    let text = w.into_inner().map_err(|e| e.into_error())?;
+    file.write_all(&text)?;
     Ok(())
 }
 
@@ -340,6 +404,45 @@ mod tests {
         assert!(logged.iter().all(|r| r.summary.actor == "eval"));
         assert!(logged.iter().any(|r| r.summary.policy_version == 3 && r.summary.stage == 0));
         assert!(logged.iter().any(|r| r.summary.room == "env3" && r.summary.stage == 1));
+    }
+
+    #[test]
+    fn eval_rows_read_back_as_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("eval.csv");
+        let rates = dvnav_eval::Rates {
+            episodes: 2,
+            success_rate: 0.5,
+            collision_rate: 0.5,
+            timeout_rate: 0.0,
+            mean_score: 0.0,
+            mean_time_s: None,
+            mean_path_length_m: None,
+        };
+        let room = |name: &str| RoomSummary {
+            room: name.into(),
+            radius: None,
+            rates: rates.clone(),
+            route: None,
+        };
+        let snap = Snapshot { updates: 10, env_steps: 40, policy_version: 3, policy: vec![] };
+        append_csv(&path, &snap, &[room("env0"), room("env3")], 1.234).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert_eq!(
+            text.lines().collect::<Vec<_>>(),
+            [
+                EVAL_CSV_HEADER,
+                "10,40,env0,,NaN,0.5000,0.5000,0.0000,NaN,2,0.0000,,NaN,3,1.23",
+                "10,40,env3,,NaN,0.5000,0.5000,0.0000,NaN,2,0.0000,,NaN,3,1.23"
+            ]
+        );
+        let rows = EvalRow::read(&path).unwrap();
+        assert_eq!(rows.len(), 2);
+        assert_eq!(
+            (rows[1].room.as_str(), rows[1].episodes, rows[1].route_completed),
+            ("env3", 2, None)
+        );
+        assert!(rows[0].score.is_nan() && rows[0].success_rate == 0.5);
     }
 
     #[test]

@@ -16,6 +16,7 @@
 //! - [`device`]: `--device cpu|cuda[:N]`.
 //! - [`evaluator`]: the evaluation protocol during training (routes and random episodes of
 //!   every curriculum room, on its own thread) into `eval.csv`.
+//! - [`csv_format`]: how numbers are spelled in `metrics.csv` and `eval.csv`.
 //! - [`trainer`]: the training thread. [`checkpoint`]: atomic checkpoints and exact resume.
 //! - [`metrics`]: live metrics, Prometheus text over HTTP (`/metrics`) and `metrics.csv`.
 //! - [`mod@run`]: a whole learner process, for `dvnav learner` and `dvnav train`.
@@ -24,6 +25,7 @@
 pub mod alloc_count;
 pub mod bench;
 pub mod checkpoint;
+pub mod csv_format;
 pub mod curriculum;
 pub mod device;
 pub mod evaluator;

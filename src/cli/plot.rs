@@ -4,6 +4,7 @@ use super::inspect::EpisodeFilter;
 use crate::render::trajectories::{RoomPanel, Trajectory, render};
 use clap::{Args, Subcommand};
 use dvnav_eval::episode_log::{EpisodeRecord, read_episodes, read_steps};
+use dvnav_learner::evaluator::EvalRow;
 use dvnav_sim::Room;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -58,32 +59,17 @@ pub enum CurveMetric {
 /// Per room, the `(env_steps, route score)` rows of a run's `eval.csv`.
 fn score_series(run: &Path) -> anyhow::Result<BTreeMap<u32, Vec<(f64, f64)>>> {
     let path = run.join("eval.csv");
-    let text = std::fs::read_to_string(&path).map_err(|e| {
-        anyhow::anyhow!(
+    if let Err(e) = std::fs::metadata(&path) {
+        anyhow::bail!(
             "cannot read {}: {e} (runs from before evaluation during training have none: use --metric success)",
             path.display()
-        )
-    })?;
+        );
+    }
     let rooms = dvnav_config::Config::default().curriculum.rooms;
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap_or("").split(',').collect();
-    let col = |name: &str| {
-        header
-            .iter()
-            .position(|h| *h == name)
-            .ok_or_else(|| anyhow::anyhow!("{}: no `{name}` column", path.display()))
-    };
-    let (steps, room, score) = (col("env_steps")?, col("room")?, col("score")?);
     let mut out: BTreeMap<u32, Vec<(f64, f64)>> = BTreeMap::new();
-    for line in lines {
-        let cells: Vec<&str> = line.split(',').collect();
-        if cells.len() != header.len() {
-            continue; // a torn last line
-        }
-        let Some(k) = rooms.iter().position(|r| r == cells[room]) else { continue };
-        if let (Ok(x), Ok(v)) = (cells[steps].parse::<f64>(), cells[score].parse::<f64>()) {
-            out.entry(k as u32).or_default().push((x, v));
-        }
+    for row in EvalRow::read(&path)? {
+        let Some(k) = rooms.iter().position(|r| *r == row.room) else { continue };
+        out.entry(k as u32).or_default().push((row.env_steps as f64, row.score));
     }
     Ok(out)
 }

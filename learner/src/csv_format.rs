@@ -1,0 +1,42 @@
+//! How numbers are spelled in the learner's CSV files (`metrics.csv`, `eval.csv`): serde
+//! `serialize_with` helpers, so the row types keep plain `f64` fields and readers parse them
+//! back with serde. The spellings are the files' own from before the csv crate: fixed decimals
+//! for times and rates, `NaN` where there is no value yet, Prometheus' `+Inf`/`-Inf`.
+
+use serde::Serializer;
+
+/// `NaN`, `+Inf`, `-Inf` or the shortest decimal that reads back as `v` (Prometheus' spelling).
+pub fn number(v: f64) -> String {
+    if v.is_nan() {
+        "NaN".into()
+    } else if v.is_infinite() {
+        if v > 0.0 { "+Inf".into() } else { "-Inf".into() }
+    } else {
+        format!("{v}")
+    }
+}
+
+/// A field spelled by [`number`].
+pub fn ser_number<S: Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(&number(*v))
+}
+
+/// A sequence of fields, each spelled by [`number`].
+pub fn ser_numbers<S: Serializer>(v: &[f64], s: S) -> Result<S::Ok, S::Error> {
+    s.collect_seq(v.iter().map(|&x| number(x)))
+}
+
+/// A field with two decimals.
+pub fn ser_2_decimals<S: Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
+    s.collect_str(&format_args!("{v:.2}"))
+}
+
+/// A field with three decimals.
+pub fn ser_3_decimals<S: Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
+    s.collect_str(&format_args!("{v:.3}"))
+}
+
+/// A field with four decimals, `NaN` when it is not finite.
+pub fn ser_4_decimals_or_nan<S: Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
+    if v.is_finite() { s.collect_str(&format_args!("{v:.4}")) } else { s.serialize_str("NaN") }
+}
