@@ -5,7 +5,7 @@
 - every `--flag` a container, or a systemd unit's ExecStart, passes to `dvnav learner` or
   `dvnav actor` is one that subcommand's `--help` lists (the real binary is asked);
 - every probe's path is one the learner's HTTP server routes (`HTTP_PATHS` in
-  learner/src/metrics.rs, whose unit test checks each is answered), on a named container port
+  learner/src/metrics/http.rs, whose unit test checks each is answered), on a named container port
   that is the port of `--metrics-addr`; `--listen` is the port named grpc;
 - Service selectors and target ports, volumes, ConfigMaps, PersistentVolumeClaims and the
   token Secret refer to things that exist (the Secret is created by hand: the README's command
@@ -96,11 +96,11 @@ def main() -> int:
     k8s = root / "deploy" / "k8s"
     cache: dict[str, set[str]] = {}
 
-    metrics_rs = (root / "learner" / "src" / "metrics.rs").read_text()
+    metrics_rs = (root / "learner" / "src" / "metrics" / "http.rs").read_text()
     m = re.search(r"pub const HTTP_PATHS: \[&str; \d+\] = \[([^\]]*)\]", metrics_rs)
     routed = set(re.findall(r'"([^"]*)"', m.group(1))) if m else set()
     if not routed:
-        error("learner/src/metrics.rs", "no HTTP_PATHS list found")
+        error("learner/src/metrics/http.rs", "no HTTP_PATHS list found")
     readme = (root / "README.md").read_text()
     default_keys = toml_keys(tomllib.loads((root / "configs" / "default.toml").read_text()))
 

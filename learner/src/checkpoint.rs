@@ -13,12 +13,20 @@
 //! the sampling generator draws from the replay buffer. All of them are here; with the replay
 //! buffer saved too, a resumed learner's next update is bit-for-bit the one it would have done
 //! (`learner/tests/sac/resume.rs`).
+//!
+//! One place assembles a checkpoint from the components' own parts and hands them back:
+//! [`save`] and [`Checkpoint::resume`]. The SAC learner's part is its tensors, update counter,
+//! optimizer step counts and noise generator; the learner state's is its [`SavedState`]
+//! (counters, curriculum) and, when configured, its replay buffer
+//! ([`LearnerState::save`], [`LearnerState::restore`]); the trainer's is its batch-sampling
+//! generator.
 
 use crate::curriculum::CurriculumState;
 use crate::replay::{ObsCodec, ReplayBuffer};
 use crate::sac::SacLearner;
-use crate::state::LearnerState;
+use crate::state::{LearnerState, SavedState};
 use candle_core::Tensor;
+use rand_pcg::Pcg64;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -49,6 +57,52 @@ pub struct CheckpointMeta {
     /// The trainer's batch-sampling generator.
     #[serde(default)]
     pub sample_rng: Option<rand_pcg::Pcg64>,
+}
+
+impl CheckpointMeta {
+    /// The meta of a checkpoint of these parts: the SAC learner's counters and noise generator,
+    /// the state's own part, the trainer's sampling generator.
+    pub fn of_parts(learner: &SacLearner, state: &SavedState, sample_rng: &Pcg64) -> Self {
+        Self {
+            updates: learner.updates(),
+            optimizer_steps: learner.optimizer_steps(),
+            noise_rng: Some(learner.noise_rng().clone()),
+            env_steps: state.env_steps,
+            episodes: state.episodes,
+            weight_version: state.weight_version,
+            stage: state.stage,
+            run_id: state.run_id.clone(),
+            curriculum: state.curriculum.clone(),
+            sample_rng: Some(sample_rng.clone()),
+        }
+    }
+
+    /// The learner state's part.
+    pub fn state_part(&self) -> SavedState {
+        SavedState {
+            run_id: self.run_id.clone(),
+            env_steps: self.env_steps,
+            episodes: self.episodes,
+            weight_version: self.weight_version,
+            stage: self.stage,
+            curriculum: self.curriculum.clone(),
+        }
+    }
+}
+
+/// Writes a checkpoint of a running learner under `out_dir/checkpoints`, assembled from the
+/// parts each component saves of itself: `learner`'s, `state`'s (with the replay buffer when
+/// `replay.save_in_checkpoint` is on) and the trainer's `sample_rng`. Returns its directory.
+pub fn save(
+    out_dir: &Path,
+    state: &LearnerState,
+    learner: &SacLearner,
+    sample_rng: &Pcg64,
+) -> anyhow::Result<PathBuf> {
+    state.save(|saved, replay| {
+        let meta = CheckpointMeta::of_parts(learner, saved, sample_rng);
+        write(out_dir, learner, &meta, state.config_toml(), replay)
+    })
 }
 
 /// The replay buffer's file inside a checkpoint directory, when it was saved.
@@ -106,7 +160,8 @@ impl Checkpoint {
             }
             None => None,
         };
-        state.restore(&self.meta, replay, learner.policy_safetensors()?);
+        let policy = learner.policy_safetensors()?;
+        state.restore(&self.meta.state_part(), self.meta.updates, replay, policy);
         Ok(self.meta.sample_rng.clone())
     }
 

@@ -6,7 +6,8 @@
 //!
 //! # Layout
 //! - [`state`]: [`state::LearnerState`], the domain object (registration, ingestion, counters,
-//!   curriculum, budget), testable without a network.
+//!   curriculum, budget, end of run), testable without a network, with its own save and
+//!   restore; its status types ([`state::status`]) and live recorder ([`state::live`]).
 //! - [`service`]: the tonic service, translating only.
 //! - [`replay`]: the replay buffer and the [`replay::Batch`] it samples.
 //! - [`rate_limiter`]: keeps updates per environment step fixed; the source of backpressure.
@@ -16,11 +17,16 @@
 //! - [`device`]: `--device cpu|cuda[:N]`.
 //! - [`evaluator`]: the evaluation protocol during training (routes and random episodes of
 //!   every curriculum room, on its own thread) into `eval.csv`.
+//! - [`trainer`]: the training thread. [`checkpoint`]: atomic checkpoints and exact resume,
+//!   assembled from the parts the SAC learner, the state and the trainer save of themselves.
+//! - [`metrics`]: live metrics by job: the sampler, Prometheus text, `metrics.csv`, and the
+//!   axum router for `/metrics`, `/healthz` and `/readyz`.
 //! - [`csv_format`]: how numbers are spelled in `metrics.csv` and `eval.csv`.
-//! - [`trainer`]: the training thread. [`checkpoint`]: atomic checkpoints and exact resume.
-//! - [`metrics`]: live metrics, Prometheus text over HTTP (`/metrics`) and `metrics.csv`.
 //! - [`mod@run`]: a whole learner process, for `dvnav learner` and `dvnav train`.
 //! - [`watchdog`]: names the component that stopped making progress (`dvnav_stalled`).
+//!
+//! No module imports one that imports it back. The end of the run is one shape throughout:
+//! the state's `CancellationToken`s (tokio-util), which every task and server stops on.
 
 pub mod alloc_count;
 pub mod bench;

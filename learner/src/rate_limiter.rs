@@ -94,7 +94,7 @@ impl RateLimiter {
     }
 
     /// Updates owed now (allowed by the ratio but not yet done) and whether ingestion would
-    /// have to wait: what the watchdog ([`crate::watchdog`]) reads to tell a slow trainer from a
+    /// have to wait: what the watchdog reads to tell a slow trainer from a
     /// limiter that cannot make progress.
     pub fn pressure(&self) -> Pressure {
         let s = self.state.lock().expect("rate limiter lock");

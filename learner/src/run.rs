@@ -1,10 +1,10 @@
 //! A whole learner process: state, trainer thread, gRPC server, end of run and summary.
 
-use crate::checkpoint::Checkpoint;
+use crate::checkpoint::{self, Checkpoint};
 use crate::sac::{SacLearner, SacNetworks};
 use crate::service::LearnerService;
 use crate::state::{LearnerState, StatusSnapshot};
-use crate::trainer;
+use crate::{metrics, trainer, watchdog};
 use candle_core::Device;
 use dvnav_config::Config;
 use serde::Serialize;
@@ -119,26 +119,18 @@ pub async fn run(
     };
 
     // Live metrics: a sample every few seconds into metrics.csv, and /metrics over HTTP.
-    let metrics = {
-        let mut stop = state.shutdown_signal();
-        tokio::spawn(crate::metrics::record(
-            state.clone(),
-            Some(opts.out_dir.join("metrics.csv")),
-            async move {
-                let _ = stop.wait_for(|s| *s).await;
-            },
-        ))
-    };
+    let metrics = tokio::spawn(metrics::record(
+        state.clone(),
+        Some(opts.out_dir.join("metrics.csv")),
+        state.shutdown_signal(),
+    ));
     // The watchdog: names a stuck component within one heartbeat.
     let watchdog = {
-        let mut stop = state.shutdown_signal();
         let heartbeat = Duration::from_secs_f64(state.config().learner.heartbeat_s);
-        tokio::spawn(crate::watchdog::run(
+        tokio::spawn(watchdog::run(
             state.clone(),
-            crate::watchdog::Timing::for_heartbeat(heartbeat),
-            async move {
-                let _ = stop.wait_for(|s| *s).await;
-            },
+            watchdog::Timing::for_heartbeat(heartbeat),
+            state.shutdown_signal(),
         ))
     };
     let metrics_http = match &opts.metrics_listener {
@@ -147,32 +139,22 @@ pub async fn run(
             l.set_nonblocking(true)?;
             let l = TcpListener::from_std(l)?;
             tracing::info!(addr = %l.local_addr()?, "serving Prometheus metrics at /metrics");
-            let mut stop = state.shutdown_signal();
-            Some(tokio::spawn(crate::metrics::serve(
-                l,
-                async move {
-                    let _ = stop.wait_for(|s| *s).await;
-                },
-                state.clone(),
-            )))
+            Some(tokio::spawn(metrics::serve(l, state.shutdown_signal(), state.clone())))
         }
         None => None,
     };
 
     let service = LearnerService::server(state.clone());
-    let mut server_stop = state.shutdown_signal();
     let server = tokio::spawn(transport.add_service(service).serve_with_incoming_shutdown(
         TcpListenerStream::new(listener),
-        async move {
-            let _ = server_stop.wait_for(|s| *s).await;
-        },
+        state.shutdown_signal().cancelled_owned(),
     ));
 
     // Until the budget is reached or we are told to stop.
-    let mut done = state.done_signal();
+    let done = state.done_signal();
     let interrupted = tokio::select! {
-        _ = done.wait_for(|d| *d) => false,
-        _ = shutdown => true,
+        () = done.cancelled() => false,
+        () = shutdown => true,
     };
     if interrupted {
         tracing::info!("shutdown requested; telling actors to stop");
@@ -188,7 +170,7 @@ pub async fn run(
         .await?
         .map_err(|_| anyhow::anyhow!("the trainer thread panicked"))??;
     let final_checkpoint = if learner.updates() > 0 {
-        match trainer::write_checkpoint(&state, &learner, &sample_rng, &opts.out_dir) {
+        match checkpoint::save(&opts.out_dir, &state, &learner, &sample_rng) {
             Ok(path) => Some(path),
             Err(e) => {
                 state.record_write_failure(

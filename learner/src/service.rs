@@ -64,7 +64,7 @@ impl LearnerService {
 }
 
 /// The HTTP/2 server for the learner service, over TLS with `tls` (`--tls-cert`, see
-/// [`dvnav_tls`]). Flow-control windows are sized for ~0.5 MB batches and ~1 MB weight
+/// [`dvnav_tls`]). Flow-control windows are sized for whole transition batches and weight
 /// messages (with the 64 KiB defaults every 64 KiB of a message waits for a window update);
 /// keepalive pings notice an actor whose machine vanished.
 pub fn transport_server(
@@ -136,11 +136,6 @@ pub fn status_to_proto(s: &StatusSnapshot) -> pb::StatusReply {
     }
 }
 
-/// Resolves once the flag is true (or its sender is gone), holding no borrow across awaits.
-async fn wait_true(flag: &mut tokio::sync::watch::Receiver<bool>) {
-    let _ = flag.wait_for(|s| *s).await;
-}
-
 type BoxStream<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send + 'static>>;
 
 #[tonic::async_trait]
@@ -178,13 +173,13 @@ impl Learner for LearnerService {
         let state = self.state.clone();
         let (tx, rx) = mpsc::channel(16);
         tokio::spawn(async move {
-            let mut shutdown = state.shutdown_signal();
+            let shutdown = state.shutdown_signal();
             let mut actor: Option<u32> = None;
             // Why the stream ended, and whether that was the actor's (or the learner's) plan.
             let (reason, expected) = loop {
                 let next = tokio::select! {
                     m = inbound.message() => m,
-                    _ = wait_true(&mut shutdown) => {
+                    () = shutdown.cancelled() => {
                         let _ = tx.send(Err(Status::unavailable("the learner is shutting down"))).await;
                         break ("learner shutdown".to_string(), true);
                     }
@@ -270,7 +265,7 @@ impl Learner for LearnerService {
     ) -> Result<Response<Self::VariablesStream>, Status> {
         self.authorize(&req)?;
         let mut rx = self.state.variables().subscribe();
-        let mut shutdown = self.state.shutdown_signal();
+        let shutdown = self.state.shutdown_signal();
         // Bounded: a slow actor holds at most one message in flight; `watch` coalesces the rest.
         let (tx, out) = mpsc::channel(1);
         tokio::spawn(async move {
@@ -281,7 +276,7 @@ impl Learner for LearnerService {
                 }
                 tokio::select! {
                     changed = rx.changed() => if changed.is_err() { break },
-                    _ = wait_true(&mut shutdown) => break,
+                    () = shutdown.cancelled() => break,
                 }
             }
         });

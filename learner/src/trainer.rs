@@ -2,7 +2,7 @@
 //! weights every `publish_every_updates`, hand a snapshot of the policy to the evaluator every
 //! `eval_every_updates`, checkpoint every `checkpoint_every_updates`.
 
-use crate::checkpoint::{self, CheckpointMeta};
+use crate::checkpoint;
 use crate::evaluator::{Evaluator, Snapshot};
 use crate::replay::Batch;
 use crate::sac::{SacLearner, UpdateMetrics};
@@ -67,7 +67,7 @@ pub fn train(
             // A failed checkpoint (disk full, unwritable directory) is logged and counted, and
             // training goes on: the state is in memory, the previous checkpoint is intact, and
             // the next one is tried at its usual time.
-            match write_checkpoint(&state, &learner, &rng, &out_dir) {
+            match checkpoint::save(&out_dir, &state, &learner, &rng) {
                 Ok(path) => tracing::info!(updates, path = %path.display(), "checkpoint written"),
                 Err(e) => state.record_write_failure(
                     "checkpoint",
@@ -95,34 +95,4 @@ pub fn train_step(
     state.limiter().updated();
     state.record_update(metrics);
     Ok(metrics)
-}
-
-/// Writes a checkpoint with the state's current counters, the curriculum, both generators and,
-/// when `replay.save_in_checkpoint` is on, the replay buffer.
-pub fn write_checkpoint(
-    state: &LearnerState,
-    learner: &SacLearner,
-    sample_rng: &Pcg64,
-    out_dir: &std::path::Path,
-) -> anyhow::Result<PathBuf> {
-    let st = state.status();
-    let meta = CheckpointMeta {
-        updates: learner.updates(),
-        env_steps: st.transitions_received,
-        episodes: st.episodes,
-        weight_version: st.weight_version,
-        optimizer_steps: learner.optimizer_steps(),
-        stage: st.stage,
-        run_id: st.run_id.clone(),
-        curriculum: Some(state.curriculum_state()),
-        noise_rng: Some(learner.noise_rng().clone()),
-        sample_rng: Some(sample_rng.clone()),
-    };
-    if state.config().replay.save_in_checkpoint {
-        state.with_replay(|r| {
-            checkpoint::write(out_dir, learner, &meta, state.config_toml(), Some(r))
-        })
-    } else {
-        checkpoint::write(out_dir, learner, &meta, state.config_toml(), None)
-    }
 }

@@ -18,17 +18,19 @@
 //! - `actor:<name>`: an actor's transition stream is open but it sent no batch.
 //!
 //! The logic is pure (time comes in as a [`Duration`] since start), so the tests drive it with a
-//! fake clock; [`run`] is the task that samples the state, logs each stall at warn level with its
-//! duration and last error, and stores them for `/metrics` (`dvnav_stalled{component}`),
-//! `/readyz` and, past `learner.liveness_stall_s`, `/healthz`.
+//! fake clock; [`run`] is the task that reads the state's progress counters
+//! ([`LearnerState::progress`], which holds no stalls), logs each stall at warn level with its
+//! duration and last error, and reports them to the state ([`LearnerState::set_stalled`]) for
+//! `/metrics` (`dvnav_stalled{component}`), `/readyz` and, past `learner.liveness_stall_s`,
+//! `/healthz`. What it reads and what it reports are apart: it never reads its own report.
 
 use crate::state::LearnerState;
-use serde::Serialize;
+pub use crate::state::Stall;
 use std::collections::BTreeMap;
-use std::future::Future;
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::time::Instant;
+use tokio_util::sync::CancellationToken;
 
 /// When the watchdog looks and how long without progress makes a stall, for one heartbeat
 /// interval (see the module docs).
@@ -84,7 +86,7 @@ pub struct Observation {
 impl Observation {
     /// The counters of `state` now.
     pub fn of(state: &LearnerState) -> Self {
-        let st = state.status();
+        let st = state.progress();
         let p = state.limiter().pressure();
         Self {
             transitions_received: st.transitions_received,
@@ -105,19 +107,6 @@ impl Observation {
                 .collect(),
         }
     }
-}
-
-/// A component stuck for `for_s` seconds.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct Stall {
-    /// `ingest`, `trainer`, `rate_limiter` or `actor:<name>`.
-    pub component: String,
-    /// Seconds since it last made progress (as seen at heartbeats).
-    pub for_s: f64,
-    /// What it is not doing.
-    pub what: String,
-    /// Its last error, when one is known.
-    pub last_error: Option<String>,
 }
 
 /// When a component's progress counter last moved, or its stall condition last did not hold.
@@ -220,11 +209,11 @@ impl Watchdog {
     }
 }
 
-/// Looks at `state` at `timing.sample_every` until `stop` resolves: logs each new stall at
+/// Looks at `state` at `timing.sample_every` until `stop` is cancelled: logs each new stall at
 /// warn level (component, how long, what, last error) and again every minute while it lasts,
-/// logs when it clears, and stores the current stalls in the state for `/metrics`, the probes
+/// logs when it clears, and reports the current stalls to the state for `/metrics`, the probes
 /// and the summary.
-pub async fn run(state: Arc<LearnerState>, timing: Timing, stop: impl Future<Output = ()>) {
+pub async fn run(state: Arc<LearnerState>, timing: Timing, stop: CancellationToken) {
     let started = Instant::now();
     let mut watchdog = Watchdog::new(timing.stall_after);
     let mut ticks = tokio::time::interval(timing.sample_every);
@@ -232,11 +221,10 @@ pub async fn run(state: Arc<LearnerState>, timing: Timing, stop: impl Future<Out
     // Components stalled at the previous sample, with when each was last logged.
     let mut previous: BTreeMap<String, Instant> = BTreeMap::new();
     const REPEAT: Duration = Duration::from_secs(60);
-    tokio::pin!(stop);
     loop {
         let tick = tokio::select! {
             tick = ticks.tick() => tick,
-            _ = &mut stop => break,
+            () = stop.cancelled() => break,
         };
         // The sample's scheduled time, not when this task got to run: with the time it ran, a
         // sample a little later than the one that saw the last progress would measure just
@@ -412,10 +400,8 @@ mod tests {
         assert!(state.limiter().pressure().updates_owed > 0);
         state.record_trainer_error("boom".into());
         let heartbeat = Duration::from_secs(5);
-        let (tx, rx) = tokio::sync::oneshot::channel::<()>();
-        let task = tokio::spawn(run(state.clone(), Timing::for_heartbeat(heartbeat), async {
-            let _ = rx.await;
-        }));
+        let stop = CancellationToken::new();
+        let task = tokio::spawn(run(state.clone(), Timing::for_heartbeat(heartbeat), stop.clone()));
         tokio::time::sleep(heartbeat / 2).await;
         assert!(state.status().stalled.is_empty(), "named before 0.6 heartbeat");
         tokio::time::sleep(heartbeat * 3 / 10).await;
@@ -423,7 +409,7 @@ mod tests {
         assert_eq!(components(&stalled), ["trainer"]);
         assert!(stalled[0].for_s <= heartbeat.as_secs_f64() * 0.8, "{stalled:?}");
         assert_eq!(stalled[0].last_error.as_deref(), Some("boom"));
-        tx.send(()).unwrap();
+        stop.cancel();
         task.await.unwrap();
     }
 

@@ -5,6 +5,7 @@ use crate::render::trajectories::{RoomPanel, Trajectory, render};
 use clap::{Args, Subcommand};
 use dvnav_eval::episode_log::{EpisodeRecord, read_episodes, read_steps};
 use dvnav_learner::evaluator::EvalRow;
+use dvnav_learner::metrics::csv_log;
 use dvnav_sim::Room;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -104,33 +105,14 @@ pub fn run(args: PlotArgs) -> anyhow::Result<ExitCode> {
 /// defined.
 fn success_series(run: &Path) -> anyhow::Result<BTreeMap<u32, Vec<(f64, f64)>>> {
     let path = run.join("metrics.csv");
-    let text = std::fs::read_to_string(&path).map_err(|e| {
-        anyhow::anyhow!("cannot read {}: {e} (is it a run directory?)", path.display())
-    })?;
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap_or("").split(',').collect();
-    let col = |name: &str| header.iter().position(|h| *h == name);
-    let steps = col("env_steps")
-        .ok_or_else(|| anyhow::anyhow!("{}: no `env_steps` column", path.display()))?;
-    let stages: Vec<(u32, usize)> = header
-        .iter()
-        .enumerate()
-        .filter_map(|(i, h)| h.strip_prefix("success_rate_stage")?.parse().ok().map(|k| (k, i)))
-        .collect();
+    if let Err(e) = std::fs::metadata(&path) {
+        anyhow::bail!("cannot read {}: {e} (is it a run directory?)", path.display());
+    }
     let mut out: BTreeMap<u32, Vec<(f64, f64)>> = BTreeMap::new();
-    for (n, line) in lines.enumerate() {
-        let cells: Vec<&str> = line.split(',').collect();
-        if cells.len() != header.len() {
-            // A run killed mid-write leaves at most a partial last line.
-            tracing::warn!(file = %path.display(), line = n + 2, "skipping a malformed row");
-            continue;
-        }
-        let Ok(x) = cells[steps].parse::<f64>() else { continue };
-        for &(k, i) in &stages {
-            if let Ok(v) = cells[i].parse::<f64>()
-                && v.is_finite()
-            {
-                out.entry(k).or_default().push((x, v));
+    for row in csv_log::read(&path)? {
+        for (k, &v) in row.success_rate_stage.iter().enumerate() {
+            if v.is_finite() {
+                out.entry(k as u32).or_default().push((row.env_steps as f64, v));
             }
         }
     }

@@ -1,11 +1,11 @@
 //! The SAC networks: policy, twin critics and their target copies, each with its own `VarMap`
 //! (so nothing filters variables by name prefix), plus the temperature log α.
 //!
-//! [`SacLearner`](super::SacLearner) needs only two things of a network, written as two small
-//! traits: a [`GaussianPolicy`] gives the mean and log std of the pre-squash Gaussian, a
-//! [`QFunction`] gives Q(s, a). The navigation CNNs of [`dvnav_nav::nets`] are the default
-//! instantiation (`SacNetworks` alone means `SacNetworks<Actor, Critic>`); the pendulum test
-//! plugs in plain MLPs.
+//! The SAC learner (`sac::learning`, which imports this module) needs only two things of a
+//! network, written as two small traits: a [`GaussianPolicy`] gives the mean and log std of the
+//! pre-squash Gaussian, a [`QFunction`] gives Q(s, a). The navigation CNNs of
+//! [`dvnav_nav::nets`] are the default instantiation (`SacNetworks` alone means
+//! `SacNetworks<Actor, Critic>`); the pendulum test plugs in plain MLPs.
 
 use candle_core::{DType, Device, Result, Tensor, Var};
 use candle_nn::{VarBuilder, VarMap};

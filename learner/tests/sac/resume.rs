@@ -2,7 +2,7 @@
 //! stopping, bit for bit. First for the SAC learner alone (the same batch fed to both), then
 //! for the learner process's whole state (replay buffer saved in the checkpoint, batch drawn
 //! by the restored sampling generator, counters, curriculum, weight version), going through
-//! the same `Checkpoint::resume` that `dvnav learner --resume` uses.
+//! the same `checkpoint::save` and `Checkpoint::resume` that `dvnav learner` uses.
 
 use crate::golden::tiny_config;
 use candle_core::Device;
@@ -141,7 +141,7 @@ async fn a_resumed_learner_process_continues_exactly() {
         trainer::train_step(&state, &mut a, &mut rng, &mut scratch).unwrap();
     }
     state.variables().publish_weights(a.policy_safetensors().unwrap());
-    trainer::write_checkpoint(&state, &a, &rng, dir.path()).unwrap();
+    checkpoint::save(dir.path(), &state, &a, &rng).unwrap();
     let before = state.status();
     // What it does next without stopping.
     let next_a = trainer::train_step(&state, &mut a, &mut rng, &mut scratch).unwrap();

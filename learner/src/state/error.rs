@@ -1,0 +1,47 @@
+//! Why the learner refuses a request: [`LearnerError`], mapped to a gRPC status in one place
+//! (the service's `From<LearnerError> for Status`).
+
+use dvnav_link::wire::WireError;
+
+/// Why the learner refused a request; mapped to a gRPC status in one place.
+#[derive(Debug, thiserror::Error)]
+pub enum LearnerError {
+    /// The actor speaks another protocol version.
+    #[error("protocol version {got} is not supported; this learner speaks {expected}")]
+    ProtocolMismatch {
+        /// What the actor sent.
+        got: u32,
+        /// What the learner speaks.
+        expected: u32,
+    },
+    /// Missing or wrong shared token.
+    #[error("missing or wrong access token")]
+    Unauthenticated,
+    /// A batch from an actor id that never registered.
+    #[error("unknown actor id {0}; register first")]
+    UnknownActor(u32),
+    /// A malformed batch.
+    #[error("malformed transition batch: {0}")]
+    Malformed(#[from] WireError),
+    /// An invalid request field.
+    #[error("invalid request: {0}")]
+    InvalidRequest(String),
+    /// The learner is shutting down.
+    #[error("the learner is shutting down")]
+    ShuttingDown,
+}
+
+impl LearnerError {
+    /// The `reason` label this refusal is counted under (`dvnav_requests_rejected_total`):
+    /// the offending field for a malformed batch, else the kind of refusal.
+    pub fn reason(&self) -> &'static str {
+        match self {
+            LearnerError::ProtocolMismatch { .. } => "protocol_version",
+            LearnerError::Unauthenticated => "unauthenticated",
+            LearnerError::UnknownActor(_) => "unknown_actor",
+            LearnerError::Malformed(e) => e.field,
+            LearnerError::InvalidRequest(_) => "invalid_request",
+            LearnerError::ShuttingDown => "shutting_down",
+        }
+    }
+}
