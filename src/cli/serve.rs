@@ -113,10 +113,9 @@ pub fn load_controller(
 /// The model's name (its directory) and version: FNV-1a 64 of its weights, so two servers (or
 /// a robot's log and a server) can tell whether they drive with the same policy.
 fn model_id(policy: &dvnav_nav::policy::PolicyFile) -> anyhow::Result<ModelId> {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in &policy.weights {
-        h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
-    }
+    let mut h = fnv::FnvHasher::default();
+    std::hash::Hasher::write(&mut h, &policy.weights);
+    let h = std::hash::Hasher::finish(&h);
     let dir = policy.path.parent().and_then(|d| d.canonicalize().ok());
     let name = dir
         .as_deref()

@@ -13,6 +13,7 @@ use dvnav_sim::obs::ObsLayout;
 pub use dvnav_sim::{EnvConfig, LidarConfig, RewardConfig};
 use serde::{Deserialize, Serialize};
 use std::fmt;
+use std::hash::Hasher;
 use std::path::{Path, PathBuf};
 
 /// Everything a run needs, section by section. See `configs/default.toml` for the annotated file.
@@ -370,11 +371,9 @@ impl Config {
 
     /// A short stable fingerprint of the config (FNV-1a 64 of its TOML), for log metadata.
     pub fn hash_hex(&self) -> String {
-        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-        for b in self.to_toml_string().bytes() {
-            h ^= b as u64;
-            h = h.wrapping_mul(0x0100_0000_01b3);
-        }
+        let mut h = fnv::FnvHasher::default();
+        h.write(self.to_toml_string().as_bytes());
+        let h = h.finish();
         format!("{h:016x}")
     }
 
