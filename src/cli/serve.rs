@@ -152,7 +152,7 @@ pub async fn serve(
 ) -> anyhow::Result<()> {
     // Small messages, one per control cycle: Nagle's algorithm would hold replies back.
     let incoming = tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true));
-    let (began, draining) = tokio::sync::oneshot::channel::<()>();
+    let draining = tokio_util::sync::CancellationToken::new();
     let mut builder = tonic::transport::Server::builder();
     if let Some(tls) = tls {
         builder = builder
@@ -163,15 +163,13 @@ pub async fn serve(
         .add_service(ControllerServer::new(ControllerService { ctl, token }))
         .serve_with_incoming_shutdown(incoming, async {
             shutdown.await;
-            let _ = began.send(());
+            draining.cancel();
         });
     tokio::select! {
         r = server => r?,
         () = async {
-            match draining.await {
-                Ok(()) => tokio::time::sleep(DRAIN_GRACE).await,
-                Err(_) => std::future::pending().await,
-            }
+            draining.cancelled().await;
+            tokio::time::sleep(DRAIN_GRACE).await;
         } => tracing::warn!(grace = ?DRAIN_GRACE, "connections still open at shutdown; closed"),
     }
     Ok(())

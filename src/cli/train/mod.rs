@@ -208,13 +208,13 @@ pub(super) fn run_one(args: TrainArgs) -> anyhow::Result<ExitCode> {
     let mut failures: Vec<ActorFailure> = Vec::new();
 
     // Ctrl-C / SIGTERM reach this process; pass them on once, then wait for a clean finish.
-    let interrupted = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let interrupted = tokio_util::sync::CancellationToken::new();
     {
-        let flag = interrupted.clone();
+        let interrupted = interrupted.clone();
         std::thread::spawn(move || {
             if let Ok(rt) = tokio::runtime::Builder::new_current_thread().enable_all().build() {
                 rt.block_on(super::shutdown_signal());
-                flag.store(true, std::sync::atomic::Ordering::SeqCst);
+                interrupted.cancel();
             }
         });
     }
@@ -228,7 +228,7 @@ pub(super) fn run_one(args: TrainArgs) -> anyhow::Result<ExitCode> {
     let mut learner_done = false;
     let mut last_line = String::new();
     while learner.poll().is_none() {
-        if interrupted.load(std::sync::atomic::Ordering::SeqCst) && !forwarded {
+        if interrupted.is_cancelled() && !forwarded {
             eprintln!("\ndvnav train: stopping (Ctrl-C); waiting for a clean shutdown");
             signal(&learner.child, libc::SIGTERM);
             forwarded = true;
