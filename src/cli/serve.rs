@@ -262,8 +262,8 @@ impl Controller for ControllerService {
             v: r.v,
             omega: r.omega,
         };
-        // About 0.3 ms of inference on this thread: less than handing it to the blocking pool
-        // and back would add (see `dvnav bench serve`).
+        // One inference runs on this thread: it takes less than handing it to the blocking pool
+        // and back would add (`dvnav bench serve`; figures in docs/results.md).
         let command = self.ctl.act(&input).inspect_err(|e| {
             tracing::debug!(robot = %r.robot_id, error = %e, "Act refused");
         });

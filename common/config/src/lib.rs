@@ -188,9 +188,8 @@ pub struct LearnerConfig {
     /// before the learner stops reading transitions (backpressure to the actors).
     pub max_steps_ahead: u64,
     /// Threads for the learner's tensor math (0: all cores). Default 1: candle 0.11's CPU
-    /// thread pool synchronizes with spin barriers, and on a small machine shared with actors
-    /// two threads measured 3.4x *slower* than one (958 vs 279 ms per update at batch 256,
-    /// `dvnav bench learner`, 2-core machine).
+    /// thread pool synchronizes with spin barriers, which on a small machine shared with actors
+    /// made two threads slower than one (docs/results.md, "Learner threads").
     pub threads: usize,
     /// Every this many updates, evaluate the deterministic policy on the evaluation route of
     /// every curriculum room plus `eval_episodes` random episodes per room, and append the
