@@ -72,9 +72,11 @@ test-multihost:
 	$(CARGO) build --bin dvnav
 	bash scripts/multihost.sh target/debug/dvnav
 
+# Crate layering and no import loops inside a crate (scripts/check_layers.py; Python 3.11+).
 lint:
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
+	$(PYTHON) scripts/check_layers.py
 
 fmt:
 	$(CARGO) fmt --all

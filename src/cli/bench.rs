@@ -102,8 +102,15 @@ fn median(v: &mut [f64]) -> f64 {
     v[v.len() / 2]
 }
 
+/// What `scripts/bench_torch.py` prints (one JSON object); typed, so a renamed field fails
+/// loudly instead of reading as no figure.
+#[derive(Debug, serde::Deserialize)]
+struct TorchFigure {
+    torch_sac_updates_per_s: f64,
+}
+
 /// Runs `scripts/bench_torch.py`; `Err` says why there is no PyTorch figure.
-fn torch_figure(batch: usize, threads: usize, updates: usize) -> Result<serde_json::Value, String> {
+fn torch_figure(batch: usize, threads: usize, updates: usize) -> Result<TorchFigure, String> {
     let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/bench_torch.py");
     let python = std::env::var("DVNAV_TORCH_PYTHON").ok().unwrap_or_else(|| {
         let venv = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv/bin/python3");
@@ -190,7 +197,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
                         ours.push(again.sac_updates_per_s);
                     }
                     match torch_figure(batch, threads, updates) {
-                        Ok(v) => theirs.extend(v["torch_sac_updates_per_s"].as_f64()),
+                        Ok(v) => theirs.push(v.torch_sac_updates_per_s),
                         Err(why) => {
                             eprintln!("PyTorch comparison skipped: {why}");
                             break;

@@ -113,10 +113,9 @@ pub fn load_controller(
 /// The model's name (its directory) and version: FNV-1a 64 of its weights, so two servers (or
 /// a robot's log and a server) can tell whether they drive with the same policy.
 fn model_id(policy: &dvnav_nav::policy::PolicyFile) -> anyhow::Result<ModelId> {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in &policy.weights {
-        h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
-    }
+    let mut h = fnv::FnvHasher::default();
+    std::hash::Hasher::write(&mut h, &policy.weights);
+    let h = std::hash::Hasher::finish(&h);
     let dir = policy.path.parent().and_then(|d| d.canonicalize().ok());
     let name = dir
         .as_deref()
@@ -153,7 +152,7 @@ pub async fn serve(
 ) -> anyhow::Result<()> {
     // Small messages, one per control cycle: Nagle's algorithm would hold replies back.
     let incoming = tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true));
-    let (began, draining) = tokio::sync::oneshot::channel::<()>();
+    let draining = tokio_util::sync::CancellationToken::new();
     let mut builder = tonic::transport::Server::builder();
     if let Some(tls) = tls {
         builder = builder
@@ -164,15 +163,13 @@ pub async fn serve(
         .add_service(ControllerServer::new(ControllerService { ctl, token }))
         .serve_with_incoming_shutdown(incoming, async {
             shutdown.await;
-            let _ = began.send(());
+            draining.cancel();
         });
     tokio::select! {
         r = server => r?,
         () = async {
-            match draining.await {
-                Ok(()) => tokio::time::sleep(DRAIN_GRACE).await,
-                Err(_) => std::future::pending().await,
-            }
+            draining.cancelled().await;
+            tokio::time::sleep(DRAIN_GRACE).await;
         } => tracing::warn!(grace = ?DRAIN_GRACE, "connections still open at shutdown; closed"),
     }
     Ok(())
@@ -265,8 +262,8 @@ impl Controller for ControllerService {
             v: r.v,
             omega: r.omega,
         };
-        // About 0.3 ms of inference on this thread: less than handing it to the blocking pool
-        // and back would add (see `dvnav bench serve`).
+        // One inference runs on this thread: it takes less than handing it to the blocking pool
+        // and back would add (`dvnav bench serve`; figures in docs/results.md).
         let command = self.ctl.act(&input).inspect_err(|e| {
             tracing::debug!(robot = %r.robot_id, error = %e, "Act refused");
         });

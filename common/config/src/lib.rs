@@ -13,6 +13,7 @@ use dvnav_sim::obs::ObsLayout;
 pub use dvnav_sim::{EnvConfig, LidarConfig, RewardConfig};
 use serde::{Deserialize, Serialize};
 use std::fmt;
+use std::hash::Hasher;
 use std::path::{Path, PathBuf};
 
 /// Everything a run needs, section by section. See `configs/default.toml` for the annotated file.
@@ -187,9 +188,8 @@ pub struct LearnerConfig {
     /// before the learner stops reading transitions (backpressure to the actors).
     pub max_steps_ahead: u64,
     /// Threads for the learner's tensor math (0: all cores). Default 1: candle 0.11's CPU
-    /// thread pool synchronizes with spin barriers, and on a small machine shared with actors
-    /// two threads measured 3.4x *slower* than one (958 vs 279 ms per update at batch 256,
-    /// `dvnav bench learner`, 2-core machine).
+    /// thread pool synchronizes with spin barriers, which on a small machine shared with actors
+    /// made two threads slower than one (docs/results.md, "Learner threads").
     pub threads: usize,
     /// Every this many updates, evaluate the deterministic policy on the evaluation route of
     /// every curriculum room plus `eval_episodes` random episodes per room, and append the
@@ -370,11 +370,9 @@ impl Config {
 
     /// A short stable fingerprint of the config (FNV-1a 64 of its TOML), for log metadata.
     pub fn hash_hex(&self) -> String {
-        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-        for b in self.to_toml_string().bytes() {
-            h ^= b as u64;
-            h = h.wrapping_mul(0x0100_0000_01b3);
-        }
+        let mut h = fnv::FnvHasher::default();
+        h.write(self.to_toml_string().as_bytes());
+        let h = h.finish();
         format!("{h:016x}")
     }
 

@@ -73,11 +73,9 @@ impl Task {
 /// of the other tasks, so an episode's start and goal never depend on how many episodes run or
 /// in which order.
 pub fn episode_seed(seed: u64, room: &str, index: usize) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for b in room.bytes() {
-        h ^= b as u64;
-        h = h.wrapping_mul(0x0100_0000_01b3);
-    }
+    let mut h = fnv::FnvHasher::default();
+    std::hash::Hasher::write(&mut h, room.as_bytes());
+    let h = std::hash::Hasher::finish(&h);
     splitmix64(seed ^ splitmix64(h ^ splitmix64(index as u64)))
 }
 

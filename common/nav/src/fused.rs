@@ -2,9 +2,8 @@
 //!
 //! Why: in a SAC update on the CPU, candle's generic element-wise machinery (one pass and one
 //! fresh buffer per op, masks built from several comparison ops in backward) cost as much as the
-//! matrix products themselves (profile of `dvnav bench learner`: ~35 % in binary/unary maps,
-//! memset and `index_add` against ~27 % in gemm). Each op here does its work in one pass, in
-//! forward and in backward:
+//! matrix products themselves (the profile is in docs/results.md, "Fused kernels"). Each op
+//! here does its work in one pass, in forward and in backward:
 //!
 //! - [`bias_act`]: `act(x + bias)` with a leaky slope (0: ReLU), the layer epilogue of every
 //!   convolution and hidden linear layer. Backward: one pass for dx, a row sum for dbias.

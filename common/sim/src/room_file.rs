@@ -562,8 +562,18 @@ pub fn builtin_specs() -> Vec<RoomSpec> {
         .collect()
 }
 
+impl RoomSpec {
+    /// The training layout (`rooms/training.toml`) instanced at `side` metres: obstacle
+    /// positions scale by `side / 8`, obstacle sizes stay the same, so smaller rooms are more
+    /// crowded. Env_0..Env_3 are sides 8, 7, 6 and 5 (`Room::builtin("env0")`, …); the layout is
+    /// checked to leave ≥ 0.6 m gaps down to side 5.
+    pub fn training(name: &str, side: f64) -> RoomSpec {
+        training_layout(name, side)
+    }
+}
+
 /// The training layout (`rooms/training.toml`) at any `side`, named `name`.
-pub(super) fn training_layout(name: &str, side: f64) -> RoomSpec {
+fn training_layout(name: &str, side: f64) -> RoomSpec {
     let (source, text) = BUILTIN_FILES[0];
     match parse_instances(text, source, Some((name, side))) {
         Ok(mut rooms) => rooms.remove(0),

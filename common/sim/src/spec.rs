@@ -403,14 +403,6 @@ impl RoomSpec {
         }
     }
 
-    /// The training layout (`rooms/training.toml`) instanced at `side` metres: obstacle
-    /// positions scale by `side / 8`, obstacle sizes stay the same, so smaller rooms are more
-    /// crowded. Env_0..Env_3 are sides 8, 7, 6 and 5 (`Room::builtin("env0")`, …); the layout is
-    /// checked to leave ≥ 0.6 m gaps down to side 5.
-    pub fn training(name: &str, side: f64) -> RoomSpec {
-        super::room_file::training_layout(name, side)
-    }
-
     /// Checks the side, the wall thickness and every shape (not where they lie: see
     /// [`super::room_file`] for the checks against the room's free space).
     pub fn validate(&self) -> anyhow::Result<()> {

@@ -17,8 +17,9 @@ pub fn token_accepted(expected: Option<&str>, presented: Option<&str>) -> bool {
     }
 }
 
+/// Equal in time independent of where the bytes differ (the length is not secret).
 fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
-    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+    subtle::ConstantTimeEq::ct_eq(a, b).into()
 }
 
 #[cfg(test)]

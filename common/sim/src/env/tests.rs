@@ -1,0 +1,561 @@
+//! Tests of `env.rs`.
+
+use super::*;
+use crate::{Footprint, ObstacleSpec, RoomSpec};
+use std::f64::consts::{FRAC_PI_2, PI};
+
+fn empty_room(side: f64) -> Arc<Room> {
+    Arc::new(Room::new(RoomSpec::empty("empty", side)))
+}
+
+fn cfg() -> EnvConfig {
+    EnvConfig::default()
+}
+
+#[test]
+fn arc_and_straight_kinematics_are_exact() {
+    let p = advance(Pose2::default(), 0.5, FRAC_PI_2, 0.2);
+    let r = 0.5 / FRAC_PI_2;
+    let th = FRAC_PI_2 * 0.2;
+    assert!((p.x - r * th.sin()).abs() < 1e-12);
+    assert!((p.y - r * (1.0 - th.cos())).abs() < 1e-12);
+    assert!((p.yaw - th).abs() < 1e-12);
+    let q = advance(Pose2::new(1.0, 2.0, 0.3), 0.5, 0.0, 0.2);
+    assert!((q.x - (1.0 + 0.1 * 0.3f64.cos())).abs() < 1e-12);
+    assert!((q.y - (2.0 + 0.1 * 0.3f64.sin())).abs() < 1e-12);
+    // Tiny ω is continuous with the straight line.
+    let e = advance(Pose2::new(1.0, 2.0, 0.3), 0.5, 1e-9, 0.2);
+    assert!((e.x - q.x).abs() < 1e-10 && (e.y - q.y).abs() < 1e-10);
+    // A full circle returns home.
+    let f = advance(Pose2::default(), 0.5, FRAC_PI_2, 4.0);
+    assert!(f.x.abs() < 1e-12 && f.y.abs() < 1e-12);
+}
+
+#[test]
+fn free_step_rewards_progress() {
+    let cfg = cfg();
+    let mut env = NavEnv::new(empty_room(8.0), &cfg, 1);
+    env.reset_to(Pose2::new(-2.0, 0.0, 0.0), [2.0, 0.0]);
+    let out = env.step(0.5, 0.0);
+    // 0.1 m straight at the goal: 2·0.1 − 0.01.
+    assert!((out.reward - 0.19).abs() < 1e-6, "{}", out.reward);
+    assert_eq!(out.done, None);
+    // A turning, clamped step: the reward is c1·(d_t − d_{t+1}) − c2 with the real poses.
+    let d0 = env.goal_distance();
+    let out = env.step(3.0, -5.0);
+    assert_eq!(env.velocity(), (0.5, -FRAC_PI_2));
+    let d1 = dist(env.pose().position(), env.goal());
+    let expect = 2.0 * (d0 - d1) - 0.01;
+    assert!((out.reward as f64 - expect).abs() < 1e-6, "{} vs {expect}", out.reward);
+    assert!((env.pose().yaw + FRAC_PI_2 * 0.2).abs() < 1e-12);
+    assert_eq!(env.steps(), 2);
+    assert!((env.sim_time() - 0.4).abs() < 1e-12);
+    assert!((env.episode_return() - (0.19f32 as f64 + out.reward as f64)).abs() < 1e-9);
+    // Reversing is not possible: v clamps to 0, and the robot only turns.
+    let before = env.pose();
+    let out = env.step(-1.0, 0.0);
+    assert_eq!(env.pose().position(), before.position());
+    assert!((out.reward + 0.01).abs() < 1e-7);
+}
+
+#[test]
+fn success_pays_r_s_and_the_env_stays_done() {
+    let cfg = cfg();
+    let mut env = NavEnv::new(empty_room(8.0), &cfg, 1);
+    env.reset_to(Pose2::new(0.0, 0.0, 0.0), [0.29, 0.0]);
+    let out = env.step(0.5, 0.0);
+    assert_eq!(out, StepOutcome { reward: 10.0, done: Some(Outcome::Success) });
+    let pose = env.pose();
+    let again = env.step(0.5, 1.0);
+    assert_eq!(again, StepOutcome { reward: 0.0, done: Some(Outcome::Success) });
+    assert_eq!(env.pose(), pose);
+    assert_eq!(env.steps(), 1);
+    env.reset();
+    assert_eq!((env.done(), env.steps(), env.velocity()), (None, 0, (0.0, 0.0)));
+}
+
+#[test]
+fn collision_pays_r_c_and_stops_at_contact() {
+    let cfg = cfg();
+    let mut env = NavEnv::new(empty_room(4.0), &cfg, 1);
+    // 0.05 m between the disc and the wall at x = 2.
+    env.reset_to(Pose2::new(1.75, 0.0, 0.0), [-1.0, 0.0]);
+    let out = env.step(0.5, 0.0);
+    assert_eq!(out, StepOutcome { reward: -10.0, done: Some(Outcome::Collision) });
+    let x = env.pose().x;
+    assert!(x > 1.8 - 1e-9 && x <= 1.8 + 0.02 + 1e-9, "stopped at the first contact: {x}");
+    assert_eq!(env.step(0.0, 0.0).done, Some(Outcome::Collision));
+}
+
+#[test]
+fn timeout_after_max_steps() {
+    let cfg = EnvConfig { max_steps: 5, ..cfg() };
+    let mut env = NavEnv::new(empty_room(8.0), &cfg, 1);
+    env.reset_to(Pose2::new(0.0, 0.0, 0.0), [2.0, 0.0]);
+    for i in 1..=5 {
+        let out = env.step(0.0, 0.5);
+        assert!((out.reward + 0.01).abs() < 1e-7, "ordinary reward at step {i}");
+        assert_eq!(out.done, (i == 5).then_some(Outcome::Timeout), "step {i}");
+    }
+    assert_eq!(env.done(), Some(Outcome::Timeout));
+}
+
+#[test]
+fn no_tunneling_through_a_thin_wall() {
+    // A 2 cm wall 1 m ahead, the goal behind it; 5 m per control step without sub-steps
+    // would jump clean over it.
+    let mut spec = RoomSpec::empty("thin", 12.0);
+    spec.obstacles.push(ObstacleSpec::Box {
+        center: [1.0, 0.0],
+        half_extents: [0.01, 3.0],
+        angle: 0.0,
+    });
+    let room = Arc::new(Room::new(spec));
+    for (v_max, dt) in [(0.5, 1.0), (5.0, 1.0)] {
+        let cfg = EnvConfig { v_max, dt, ..cfg() };
+        let mut env = NavEnv::new(room.clone(), &cfg, 1);
+        env.reset_to(Pose2::new(0.0, 0.0, 0.0), [3.0, 0.0]);
+        let mut done = None;
+        for _ in 0..10 {
+            done = env.step(v_max, 0.0).done;
+            assert!(env.pose().x < 1.0, "centre stays in front of the wall");
+            if done.is_some() {
+                break;
+            }
+        }
+        assert_eq!(done, Some(Outcome::Collision), "v_max {v_max}");
+        assert!(env.pose().x >= 0.79 - 0.02, "{}", env.pose().x);
+    }
+}
+
+#[test]
+fn observation_layout_and_goal_angle() {
+    let cfg = cfg();
+    let mut env = NavEnv::new(empty_room(8.0), &cfg, 1);
+    env.reset_to(Pose2::new(1.0, 1.0, FRAC_PI_2), [0.0, 1.0]);
+    let mut o = vec![0.0; env.obs_dim()];
+    env.write_obs(&mut o);
+    let b = 540;
+    assert_eq!(o.len(), 544);
+    assert_eq!(&o[..b], env.scan());
+    assert!((o[b + obs::GOAL_DISTANCE] - 1.0).abs() < 1e-6);
+    assert!((o[b + obs::GOAL_ANGLE] - FRAC_PI_2 as f32).abs() < 1e-6, "goal to the left");
+    assert_eq!((o[b + obs::LINEAR_VELOCITY], o[b + obs::ANGULAR_VELOCITY]), (0.0, 0.0));
+    // Straight behind: +π, never −π.
+    env.reset_to(Pose2::new(1.0, 0.0, 0.0), [0.0, 0.0]);
+    assert_eq!(env.goal_angle(), PI);
+    env.reset_to(Pose2::new(0.0, 0.0, PI), [-1.0, -1.0]);
+    assert!((env.goal_angle() - PI / 4.0).abs() < 1e-12, "{}", env.goal_angle());
+    env.step(0.3, -0.2);
+    env.write_obs(&mut o);
+    assert_eq!((o[b + obs::LINEAR_VELOCITY], o[b + obs::ANGULAR_VELOCITY]), (0.3, -0.2));
+    // Straight ahead, the scan reads the wall at x = −4 seen from the robot.
+    let (x, yaw) = (env.pose().x, env.pose().yaw);
+    let theta = env.lidar().beam_angles()[270] + yaw;
+    let expect = (-4.0 - x) / theta.cos();
+    assert!((o[270] as f64 - expect).abs() < 1e-3, "{} vs {expect}", o[270]);
+}
+
+#[test]
+fn the_radius_input_adds_the_episodes_radius_after_omega() {
+    let standard = NavEnv::new(empty_room(8.0), &cfg(), 1);
+    assert_eq!(standard.obs_dim(), 544, "the meta agent's layout is unchanged");
+    let cfg = EnvConfig { radius_input: true, robot_radius: 0.3, ..cfg() };
+    let mut env = NavEnv::new(empty_room(8.0), &cfg, 1);
+    assert_eq!(env.obs_dim(), 545);
+    let mut o = vec![0.0; 545];
+    env.write_obs(&mut o);
+    assert_eq!(o[540 + obs::RADIUS], 0.3);
+    // The standard part is what an environment without the radius input writes.
+    let plain_cfg = EnvConfig { radius_input: false, ..cfg.clone() };
+    let mut plain = NavEnv::new(empty_room(8.0), &plain_cfg, 1);
+    let mut p = vec![0.0; 544];
+    for _ in 0..5 {
+        env.step(0.4, 0.3);
+        plain.step(0.4, 0.3);
+        env.write_obs(&mut o);
+        plain.write_obs(&mut p);
+        assert_eq!(o[..544], p[..]);
+        assert_eq!(o[544], 0.3);
+    }
+    // A given footprint's radius input is its bounding radius.
+    let fp = Footprint::rectangle(0.6, 0.8);
+    let env = NavEnv::with_footprint(empty_room(8.0), &cfg, 1, fp);
+    env.write_obs(&mut o);
+    assert!((o[544] as f64 - 0.5).abs() < 1e-6, "{}", o[544]);
+}
+
+#[test]
+fn radii_are_drawn_per_episode_within_the_range_and_replay_for_a_seed() {
+    let cfg = EnvConfig { radius_input: true, radius_range: Some([0.2, 0.5]), ..cfg() };
+    let room = Room::builtin("sac_ri").unwrap();
+    let radii = |seed: u64| -> Vec<f64> {
+        let mut env = NavEnv::new(room.clone(), &cfg, seed);
+        let mut o = vec![0.0; env.obs_dim()];
+        (0..200)
+            .map(|_| {
+                env.reset();
+                let r = env.robot_radius();
+                env.write_obs(&mut o);
+                assert_eq!(o[540 + obs::RADIUS], r as f32, "the observation holds it");
+                assert_eq!(env.footprint().as_circle(), Some(r), "the robot is that circle");
+                // Spawn clearance follows the drawn radius.
+                let need = r + cfg.spawn_clearance;
+                assert!(!room.circle_collides_any_time(env.start().position(), need));
+                assert!(!room.circle_collides_any_time(env.goal(), need));
+                r
+            })
+            .collect()
+    };
+    let a = radii(4);
+    assert!(a.iter().all(|r| (0.2..=0.5).contains(r)), "{a:?}");
+    let (lo, hi) = a.iter().fold((1.0f64, 0.0f64), |(l, h), &r| (l.min(r), h.max(r)));
+    assert!(lo < 0.25 && hi > 0.45, "spread over the range: {lo} .. {hi}");
+    assert_eq!(a, radii(4), "the same seed draws the same radii");
+    assert_ne!(a, radii(5));
+    // The robot collides as the drawn circle: driving into a wall, it stops r from it.
+    let mut env = NavEnv::new(empty_room(8.0), &cfg, 9);
+    let r = env.robot_radius();
+    env.reset_to(Pose2::new(3.0, 0.0, 0.0), [-3.0, 0.0]);
+    assert_eq!(env.robot_radius(), 0.2, "a route drives robot_radius");
+    env.reset();
+    assert_ne!(env.robot_radius(), r, "the next random episode draws again");
+    let r = env.robot_radius();
+    env.begin(Pose2::new(0.0, 0.0, 0.0), [-3.0, 0.0]); // as reset left the robot
+    while env.done().is_none() {
+        env.step(0.5, 0.0);
+    }
+    assert_eq!(env.done(), Some(Outcome::Collision));
+    assert!((env.pose().x - (4.0 - r)).abs() < 0.03, "{} vs r = {r}", env.pose().x);
+    // A given footprint is that robot in every episode; a one-value range draws nothing.
+    let mut fixed = NavEnv::with_footprint(room.clone(), &cfg, 4, Footprint::circle(0.35));
+    let one = EnvConfig { radius_range: Some([0.3, 0.3]), ..cfg.clone() };
+    let mut single = NavEnv::new(room.clone(), &one, 4);
+    let fixed_cfg = EnvConfig { radius_range: None, robot_radius: 0.3, ..one.clone() };
+    let mut none = NavEnv::new(room.clone(), &fixed_cfg, 4);
+    for _ in 0..20 {
+        fixed.reset();
+        single.reset();
+        none.reset();
+        assert_eq!(fixed.robot_radius(), 0.35);
+        assert_eq!(single.robot_radius(), 0.3);
+        assert_eq!((single.start(), single.goal()), (none.start(), none.goal()));
+    }
+}
+
+fn run_episode(env: &mut NavEnv, actions: &mut Pcg64) -> (Vec<u32>, Vec<u32>) {
+    let mut obs_bits = Vec::new();
+    let mut reward_bits = Vec::new();
+    let mut o = vec![0.0f32; env.obs_dim()];
+    env.write_obs(&mut o);
+    obs_bits.extend(o.iter().map(|x| x.to_bits()));
+    loop {
+        let (v, w) = (actions.random_range(0.0..0.5), actions.random_range(-1.5..1.5));
+        let out = env.step(v, w);
+        env.write_obs(&mut o);
+        obs_bits.extend(o.iter().map(|x| x.to_bits()));
+        reward_bits.push(out.reward.to_bits());
+        if out.done.is_some() {
+            return (obs_bits, reward_bits);
+        }
+    }
+}
+
+#[test]
+fn same_seed_same_episodes_different_seed_different() {
+    let room = Room::builtin("env3").unwrap();
+    let cfg = EnvConfig { max_steps: 60, ..cfg() };
+    let mut a = NavEnv::new(room.clone(), &cfg, 42);
+    let mut b = NavEnv::new(room.clone(), &cfg, 42);
+    for episode in 0..3 {
+        let ea = run_episode(&mut a, &mut Pcg64::seed_from_u64(episode));
+        let eb = run_episode(&mut b, &mut Pcg64::seed_from_u64(episode));
+        assert_eq!(ea, eb, "episode {episode}");
+        a.reset();
+        b.reset();
+    }
+    let c = NavEnv::new(room, &cfg, 43);
+    assert_ne!((a.start(), a.goal()), (c.start(), c.goal()));
+}
+
+#[test]
+fn lidar_noise_is_seeded_and_leaves_the_episodes_alone() {
+    let room = Room::builtin("env1").unwrap();
+    let noisy_cfg =
+        EnvConfig { lidar: crate::LidarConfig { noise_std: 0.01, ..Default::default() }, ..cfg() };
+    let exact = NavEnv::new(room.clone(), &cfg(), 11);
+    let mut a = NavEnv::new(room.clone(), &noisy_cfg, 11);
+    let mut b = NavEnv::new(room, &noisy_cfg, 11);
+    assert_eq!((a.start(), a.goal()), (exact.start(), exact.goal()), "same episodes");
+    assert_ne!(a.scan(), exact.scan(), "noisy");
+    assert_eq!(a.scan(), b.scan(), "deterministic");
+    a.step(0.2, 0.1);
+    b.step(0.2, 0.1);
+    assert_eq!(a.scan(), b.scan());
+}
+
+#[test]
+fn set_room_takes_effect_at_reset() {
+    let mut env = NavEnv::new(Room::builtin("env0").unwrap(), &cfg(), 5);
+    env.set_room(Room::builtin("env3").unwrap());
+    assert_eq!(env.room().name(), "env0");
+    env.reset();
+    assert_eq!(env.room().name(), "env3");
+}
+
+#[test]
+fn builtin_rooms_sample_valid_starts_and_goals() {
+    let cfg = cfg();
+    let need = cfg.robot_radius + cfg.spawn_clearance;
+    for name in Room::builtin_names() {
+        let room = Room::builtin(&name).unwrap();
+        if Room::training_names().contains(&name.as_str()) {
+            assert!(!room.circle_collides([0.0, 0.0], cfg.robot_radius), "{name}: origin");
+            assert!(room.clearance([0.0, 0.0], 1.0) >= 0.4 + cfg.robot_radius);
+        }
+        let half = room.side() / 2.0;
+        let mut env = NavEnv::new(room.clone(), &cfg, 9);
+        for _ in 0..200 {
+            env.reset();
+            let (s, g) = (env.start().position(), env.goal());
+            for p in [s, g] {
+                assert!(p[0].abs() < half && p[1].abs() < half, "{name}: {p:?} inside");
+                assert!(room.clearance(p, 1.0) >= need - 1e-5, "{name}: {p:?} free");
+            }
+            assert!(dist(s, g) >= cfg.min_start_goal_distance);
+            assert!(env.start().yaw > -PI && env.start().yaw <= PI);
+            assert_eq!(env.pose(), env.start());
+            assert!(env.scan().iter().all(|&r| r as f64 >= cfg.robot_radius));
+        }
+    }
+}
+
+/// A 2 cm wall across the room 1 m ahead at full speed (and at 10x the speed with a 1 s
+/// control period): the circle and the rectangle footprints both stop in front of it.
+#[test]
+fn no_tunneling_at_full_speed_for_circle_and_rectangle() {
+    let mut spec = RoomSpec::empty("thin", 12.0);
+    spec.obstacles.push(ObstacleSpec::Box {
+        center: [1.0, 0.0],
+        half_extents: [0.01, 5.0],
+        angle: 0.0,
+    });
+    let room = Arc::new(Room::new(spec));
+    let rect = Footprint::rectangle(0.5, 0.3);
+    for fp in [
+        Footprint::circle(0.2),
+        rect.clone(),
+        rect.with_cargo([ObstacleSpec::Circle { center: [-0.4, 0.0], radius: 0.1 }]),
+    ] {
+        let front = fp.parts.iter().map(|p| p.aabb()[1][0]).fold(f64::MIN, f64::max);
+        for (v_max, dt) in [(0.5, 0.2), (5.0, 1.0)] {
+            let cfg = EnvConfig { v_max, dt, ..cfg() };
+            let mut env = NavEnv::with_footprint(room.clone(), &cfg, 1, fp.clone());
+            env.reset_to(Pose2::new(0.0, 0.0, 0.0), [3.0, 0.0]);
+            let mut done = None;
+            for _ in 0..40 {
+                done = env.step(v_max, 0.0).done;
+                if done.is_some() {
+                    break;
+                }
+            }
+            assert_eq!(done, Some(Outcome::Collision), "{} at {v_max} m/s", fp.name);
+            let nose = env.pose().x + front;
+            assert!(
+                (0.99 - 1e-6..=0.99 + 0.02 + 1e-6).contains(&nose),
+                "{}: nose at {nose}",
+                fp.name
+            );
+        }
+    }
+}
+
+/// A 1 m x 0.1 m rectangle turning in place beside a wall 0.3 m from its axle: it starts
+/// and (after half a turn) would end parallel to the wall, clear of it, but its corners
+/// sweep through the wall on the way. Checking only the end pose misses the contact.
+#[test]
+fn a_long_rectangle_turning_beside_a_wall_hits_it() {
+    let mut spec = RoomSpec::empty("wall", 6.0);
+    spec.obstacles.push(ObstacleSpec::Box {
+        center: [0.0, 0.35],
+        half_extents: [2.0, 0.05],
+        angle: 0.0,
+    });
+    let room = Arc::new(Room::new(spec));
+    let fp = Footprint::rectangle(1.0, 0.1);
+    // ω_max·dt = π: one control step is half a turn.
+    let cfg = EnvConfig { dt: 2.0, ..cfg() };
+    let mut env = NavEnv::with_footprint(room.clone(), &cfg, 1, fp.clone());
+    env.reset_to(Pose2::new(0.0, 0.0, 0.0), [2.0, -2.0]);
+    assert!(!room.footprint_collides(&fp, Pose2::new(0.0, 0.0, PI)), "end pose is clear");
+    let out = env.step(0.0, cfg.omega_max);
+    assert_eq!(out.done, Some(Outcome::Collision));
+    // Stopped at the first contact: a corner reaches y = 0.3 at yaw ≈ asin(0.25/0.51)−atan(0.1).
+    let yaw = env.pose().yaw;
+    let contact = (0.3f64 / 0.5f64.hypot(0.05)).asin() - (0.05f64 / 0.5).atan();
+    assert!(yaw >= contact - 1e-9 && yaw <= contact + 0.02 / 0.5 + 1e-9, "yaw {yaw} vs {contact}");
+    assert!(env.pose().position() == [0.0, 0.0]);
+    // The same turn the other way is free (the wall is only on the left).
+    let mut env = NavEnv::with_footprint(room, &cfg, 1, fp);
+    env.reset_to(Pose2::new(0.0, -1.0, 0.0), [2.0, -2.0]);
+    assert_eq!(env.step(0.0, -cfg.omega_max).done, None);
+}
+
+#[test]
+fn footprints_sample_starts_with_their_clearance_and_stay_seeded() {
+    let room = Room::builtin("env2").unwrap();
+    let fp = Footprint::rectangle(0.8, 0.4)
+        .with_cargo([ObstacleSpec::Circle { center: [-0.5, 0.0], radius: 0.15 }]);
+    let cfg = cfg();
+    let need = fp.bounding_radius() + cfg.spawn_clearance;
+    let mut a = NavEnv::with_footprint(room.clone(), &cfg, 4, fp.clone());
+    let mut b = NavEnv::with_footprint(room.clone(), &cfg, 4, fp.clone());
+    for _ in 0..100 {
+        for p in [a.start().position(), a.goal()] {
+            assert!(room.clearance(p, 2.0) >= need - 1e-5, "{p:?}");
+        }
+        assert!(!room.footprint_collides(&fp, a.start()));
+        assert_eq!((a.start(), a.goal()), (b.start(), b.goal()));
+        a.reset();
+        b.reset();
+    }
+    // Through the config as well.
+    let via_cfg = EnvConfig { footprint: Some(fp.clone()), ..cfg.clone() };
+    let c = NavEnv::new(room, &via_cfg, 4);
+    assert_eq!(c.footprint(), &fp);
+}
+
+#[test]
+fn spawn_regions_hold_starts_and_goals() {
+    let mut spec = RoomSpec::empty("regions", 6.0);
+    spec.spawn_regions = vec![
+        crate::SpawnRegion {
+            name: "west".into(),
+            min: [-2.5, -2.5],
+            max: [-1.5, 2.5],
+            starts: true,
+            goals: false,
+        },
+        crate::SpawnRegion {
+            name: "east".into(),
+            min: [1.5, -2.5],
+            max: [2.5, 2.5],
+            starts: false,
+            goals: true,
+        },
+    ];
+    let mut env = NavEnv::new(Arc::new(Room::new(spec)), &cfg(), 2);
+    for _ in 0..100 {
+        let (s, g) = (env.start().position(), env.goal());
+        assert!((-2.5..=-1.5).contains(&s[0]) && (1.5..=2.5).contains(&g[0]), "{s:?} {g:?}");
+        env.reset();
+    }
+}
+
+/// The dynamic room's route driven straight at full speed: the first timed obstacle is in
+/// the scan from step 8 on (not before), the rapier reference sees it too, and the robot
+/// runs into it; the same seed and actions give byte-identical episodes.
+#[test]
+fn timed_obstacles_appear_in_scan_and_collision() {
+    let room = Room::builtin("dynamic").unwrap();
+    let route = room.spec().route("dynamic").unwrap().clone();
+    let mut env = NavEnv::new(room.clone(), &cfg(), 1);
+    env.reset_to(route.start_pose(), route.goals[0]);
+    let ahead = |env: &NavEnv| env.scan()[270] as f64;
+    let mut reference = vec![0.0f32; env.lidar().beams()];
+    let mut hit = None;
+    for k in 1..=40 {
+        let before = ahead(&env);
+        let out = env.step(0.5, 0.0);
+        let y = env.pose().y;
+        if k < 8 {
+            assert_eq!(env.timed_active(), 0);
+            assert!(ahead(&env) > 2.0 && (ahead(&env) - (before - 0.1)).abs() < 1e-3, "step {k}");
+        } else if out.done.is_none() {
+            assert!(env.timed_active() >= 1);
+            // The disc at (0, −1), r 0.3: the beam just left of ahead meets it near y = −1.3.
+            assert!((ahead(&env) - (-1.3 - y)).abs() < 1e-3, "step {k}: {} at y {y}", ahead(&env));
+        }
+        env.lidar().scan_reference_active(
+            &room,
+            env.pose(),
+            env.timed_active(),
+            None::<&mut Pcg64>,
+            &mut reference,
+        );
+        for (i, (&f, &r)) in env.scan().iter().zip(&reference).enumerate() {
+            assert!((f - r).abs() < 1e-4, "step {k}, beam {i}: {f} vs rapier {r}");
+        }
+        if out.done.is_some() {
+            hit = Some((k, out.done));
+            break;
+        }
+    }
+    // The robot's front (y + 0.2) reaches the disc (y = −1.3) after 1.5 m: step 15.
+    assert_eq!(hit, Some((15, Some(Outcome::Collision))));
+    // Reset: the obstacles are gone again.
+    env.reset_to(route.start_pose(), route.goals[0]);
+    assert_eq!(env.timed_active(), 0);
+    // Determinism in the dynamic room, with random starts and actions.
+    let mut a = NavEnv::new(room.clone(), &cfg(), 8);
+    let mut b = NavEnv::new(room, &cfg(), 8);
+    for episode in 0..3 {
+        let ea = run_episode(&mut a, &mut Pcg64::seed_from_u64(episode));
+        let eb = run_episode(&mut b, &mut Pcg64::seed_from_u64(episode));
+        assert_eq!(ea, eb, "episode {episode}");
+        a.reset();
+        b.reset();
+    }
+}
+
+#[test]
+fn an_obstacle_appearing_on_the_robot_is_a_collision() {
+    let mut spec = RoomSpec::empty("drop", 6.0);
+    spec.timed_obstacles.push(crate::TimedObstacle {
+        at_step: 2,
+        obstacle: ObstacleSpec::Circle { center: [0.5, 0.0], radius: 0.3 },
+    });
+    let mut env = NavEnv::new(Arc::new(Room::new(spec)), &cfg(), 1);
+    env.reset_to(Pose2::new(0.0, 0.0, 0.0), [2.0, 2.0]);
+    assert_eq!(env.step(0.0, 0.0).done, None);
+    assert_eq!(env.step(0.0, 0.0).done, Some(Outcome::Collision), "appears at step 2");
+}
+
+#[test]
+#[ignore = "benchmark; run with --release -- --ignored --nocapture"]
+fn steps_per_second() {
+    let room = Room::builtin("env2").unwrap();
+    let mut env = NavEnv::new(room, &cfg(), 1);
+    let mut obs = vec![0.0f32; env.obs_dim()];
+    let mut actions = Pcg64::seed_from_u64(0);
+    let n = 20_000;
+    let t = std::time::Instant::now();
+    for _ in 0..n {
+        let out = env.step(actions.random_range(0.0..0.5), actions.random_range(-1.5..1.5));
+        env.write_obs(&mut obs);
+        if out.done.is_some() {
+            env.reset();
+        }
+    }
+    let s = t.elapsed().as_secs_f64();
+    println!("single env: {:.0} steps/s ({:.1} µs/step)", n as f64 / s, s / n as f64 * 1e6);
+    let (lidar, room, pose) = (env.lidar().clone(), env.room().clone(), env.pose());
+    let mut scan = vec![0.0f32; lidar.beams()];
+    let t = std::time::Instant::now();
+    for _ in 0..n {
+        lidar.scan(&room, pose, None::<&mut Pcg64>, &mut scan);
+    }
+    let s = t.elapsed().as_secs_f64();
+    println!(
+        "scan alone: {:.1} µs ({:.0} ns/beam)",
+        s / n as f64 * 1e6,
+        s / n as f64 * 1e9 / 540.0
+    );
+    let m = n / 10;
+    let t = std::time::Instant::now();
+    for _ in 0..m {
+        lidar.scan_reference(&room, pose, None::<&mut Pcg64>, &mut scan);
+    }
+    let s = t.elapsed().as_secs_f64();
+    println!("rapier reference scan: {:.1} µs", s / m as f64 * 1e6);
+}

@@ -1,0 +1,75 @@
+//! `dvnav train --seeds N`: the same config trained with N seeds one after the other, and the
+//! table and `seeds_summary.json` that compare them.
+
+use super::{TrainArgs, default_out, read_json, run_one};
+use serde_json::{Value, json};
+use std::path::Path;
+use std::process::ExitCode;
+
+/// `--seeds N`: the runs one after the other, then their summary.
+pub(super) fn run_seeds(args: TrainArgs, n: usize) -> anyhow::Result<ExitCode> {
+    anyhow::ensure!(n >= 1, "--seeds must be at least 1");
+    let base_cfg = super::super::load_config(args.config.as_ref())?;
+    let first = args.seed.unwrap_or(base_cfg.run.seed);
+    let out = args.out.clone().unwrap_or_else(default_out);
+    let mut rows = Vec::new();
+    let mut all_ok = true;
+    for seed in first..first + n as u64 {
+        let dir = out.join(format!("seed-{seed}"));
+        eprintln!("dvnav train: seed {seed} ({} of {n}) in {}", seed - first + 1, dir.display());
+        let one =
+            TrainArgs { seed: Some(seed), out: Some(dir.clone()), seeds: None, ..args.clone() };
+        let code = run_one(one)?;
+        all_ok &= code == ExitCode::SUCCESS;
+        rows.push(seed_row(seed, &dir));
+    }
+    eprintln!("\nseed  stage  skilled at (steps)  time to skill (s)  wall (s)");
+    for r in &rows {
+        let opt = |v: &Value| v.as_f64().map_or("-".to_string(), |x| format!("{x:.0}"));
+        eprintln!(
+            "{:<5} {:<6} {:<19} {:<18} {}",
+            r["seed"],
+            r["stage"],
+            opt(&r["skilled_env_steps"]),
+            opt(&r["time_to_skill_s"]),
+            opt(&r["wall_time_s"])
+        );
+    }
+    let skilled = rows.iter().filter(|r| !r["skilled_env_steps"].is_null()).count();
+    eprintln!("{skilled} of {n} seeds reached the last room's threshold");
+    let summary = json!({ "seeds": rows, "skilled": skilled, "runs": n });
+    std::fs::write(out.join("seeds_summary.json"), serde_json::to_vec_pretty(&summary)?)?;
+    Ok(if all_ok { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+}
+
+/// One seed's line of `seeds_summary.json`, from its run directory.
+pub(super) fn seed_row(seed: u64, dir: &Path) -> Value {
+    let s = read_json(&dir.join("run_summary.json")).unwrap_or(Value::Null);
+    let skilled_steps = s["skilled"]["env_steps"].as_u64();
+    json!({
+        "seed": seed,
+        "run_dir": dir.display().to_string(),
+        "stage": s["stage"],
+        "stage_changes": s["stage_changes"],
+        "skilled_env_steps": skilled_steps,
+        "time_to_skill_s": skilled_steps.and_then(|n| time_at_steps(dir, n)),
+        "wall_time_s": s["wall_time_s"],
+        "env_steps": s["transitions_received"],
+    })
+}
+
+/// Wall time (s) at which the run's `metrics.csv` first shows `steps` environment steps.
+pub fn time_at_steps(dir: &Path, steps: u64) -> Option<f64> {
+    let text = std::fs::read_to_string(dir.join("metrics.csv")).ok()?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next()?.split(',').collect();
+    let (t, n) = (
+        header.iter().position(|h| *h == "time_s")?,
+        header.iter().position(|h| *h == "env_steps")?,
+    );
+    lines.find_map(|l| {
+        let f: Vec<&str> = l.split(',').collect();
+        let at: u64 = f.get(n)?.parse().ok()?;
+        (at >= steps).then(|| f.get(t)?.parse().ok()).flatten()
+    })
+}
