@@ -2,6 +2,7 @@
 //! table and `seeds_summary.json` that compare them.
 
 use super::{TrainArgs, default_out, read_json, run_one};
+use dvnav_learner::metrics::csv_log;
 use serde_json::{Value, json};
 use std::path::Path;
 use std::process::ExitCode;
@@ -60,16 +61,6 @@ pub(super) fn seed_row(seed: u64, dir: &Path) -> Value {
 
 /// Wall time (s) at which the run's `metrics.csv` first shows `steps` environment steps.
 pub fn time_at_steps(dir: &Path, steps: u64) -> Option<f64> {
-    let text = std::fs::read_to_string(dir.join("metrics.csv")).ok()?;
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next()?.split(',').collect();
-    let (t, n) = (
-        header.iter().position(|h| *h == "time_s")?,
-        header.iter().position(|h| *h == "env_steps")?,
-    );
-    lines.find_map(|l| {
-        let f: Vec<&str> = l.split(',').collect();
-        let at: u64 = f.get(n)?.parse().ok()?;
-        (at >= steps).then(|| f.get(t)?.parse().ok()).flatten()
-    })
+    let rows = csv_log::read(&dir.join("metrics.csv")).ok()?;
+    rows.iter().find(|r| r.env_steps >= steps && r.time_s.is_finite()).map(|r| r.time_s)
 }
