@@ -35,7 +35,7 @@ struct EpisodeInfo {
 }
 
 /// Counters of one actor's loop.
-#[derive(Clone, Debug, Default, serde::Serialize)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct LoopCounters {
     /// Environment steps taken (all environments).
     pub env_steps: u64,

@@ -241,7 +241,7 @@ impl Outbox {
 }
 
 /// Delivery counters of a link.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, serde::Deserialize)]
 pub struct LinkCounters {
     /// Batches handed to the learner (each counted once, however often resent).
     pub batches_sent: u64,

@@ -34,8 +34,9 @@ pub struct ActorOptions {
     pub connect_timeout: Duration,
 }
 
-/// What an actor reports at the end (`actors/<name>/summary.json`).
-#[derive(Clone, Debug, Default, Serialize)]
+/// What an actor reports at the end (`actors/<name>/summary.json`); `dvnav train` reads it
+/// back as this type.
+#[derive(Clone, Debug, Default, Serialize, serde::Deserialize)]
 pub struct ActorSummary {
     /// Actor name.
     pub name: String,

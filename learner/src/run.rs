@@ -38,17 +38,21 @@ pub struct LearnerOptions {
     pub tls: Option<tonic::transport::ServerTlsConfig>,
 }
 
-/// The learner's part of `run_summary.json`.
-#[derive(Clone, Debug, Serialize)]
+/// The learner's part of `run_summary.json` (`learner_summary.json`); `dvnav train` reads it
+/// back as this type.
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct LearnerSummary {
     /// Counters at the end.
     #[serde(flatten)]
     pub status: StatusSnapshot,
     /// Wall time of the learner (s).
+    #[serde(deserialize_with = "crate::state::f64_or_nan")]
     pub wall_time_s: f64,
     /// Transitions received per second of wall time.
+    #[serde(deserialize_with = "crate::state::f64_or_nan")]
     pub env_steps_per_s: f64,
     /// Updates per second of wall time.
+    #[serde(deserialize_with = "crate::state::f64_or_nan")]
     pub updates_per_s: f64,
     /// Directory of the final checkpoint.
     pub final_checkpoint: Option<PathBuf>,

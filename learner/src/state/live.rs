@@ -13,7 +13,7 @@ use std::sync::{Arc, Mutex};
 pub const STAGE_WINDOW: usize = 50;
 
 /// Policy lag (weight versions) of a set of transitions.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct LagStats {
     /// Sum of lags.
     pub sum: u64,
@@ -37,7 +37,7 @@ impl LagStats {
 }
 
 /// Episode outcomes of one curriculum stage.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct StageStats {
     /// Stage index.
     pub stage: u32,
@@ -46,6 +46,7 @@ pub struct StageStats {
     /// Of which successes.
     pub successes: u64,
     /// Success rate over the stage's last [`STAGE_WINDOW`] episodes (NaN before any).
+    #[serde(deserialize_with = "super::status::f64_or_nan")]
     pub recent_success_rate: f64,
 }
 
@@ -68,11 +69,13 @@ struct LiveInner {
 }
 
 /// What [`LiveMetrics`] adds to a status snapshot.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct LiveSnapshot {
     /// Environment steps per second over the sampler's rate window (about 10 s).
+    #[serde(deserialize_with = "super::status::f64_or_nan")]
     pub env_steps_per_s: f64,
     /// Learner updates per second over the sampler's rate window.
+    #[serde(deserialize_with = "super::status::f64_or_nan")]
     pub updates_per_s: f64,
     /// Policy lag of the whole run.
     pub policy_lag: LagStats,

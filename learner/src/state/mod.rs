@@ -27,7 +27,9 @@ pub mod status;
 pub use error::LearnerError;
 pub use live::{LagStats, LiveMetrics, LiveSnapshot, StageStats};
 pub use saved::SavedState;
-pub use status::{Ack, ActorCounters, Progress, Readiness, Registration, Stall, StatusSnapshot};
+pub use status::{
+    Ack, ActorCounters, Progress, Readiness, Registration, Stall, StatusSnapshot, f64_or_nan,
+};
 
 use crate::curriculum::{Curriculum, CurriculumState};
 use crate::rate_limiter::RateLimiter;

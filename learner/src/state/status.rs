@@ -5,11 +5,11 @@
 
 use super::live::LiveSnapshot;
 use crate::curriculum::StageChange;
-use serde::Serialize;
+use serde::{Deserialize, Deserializer, Serialize};
 use std::collections::BTreeMap;
 
 /// Counters of one actor.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct ActorCounters {
     /// Actor id given at registration.
     pub actor_id: u32,
@@ -50,7 +50,7 @@ pub struct ActorCounters {
 }
 
 /// What `Status` returns and the run summary is built from.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct StatusSnapshot {
     /// Run id.
     pub run_id: String,
@@ -69,12 +69,16 @@ pub struct StatusSnapshot {
     /// Curriculum stage.
     pub stage: u32,
     /// Success rate over the curriculum window.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub success_rate: f64,
     /// Last critic loss.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub critic_loss: f64,
     /// Last actor loss.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub actor_loss: f64,
     /// Temperature α.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub alpha: f64,
     /// The step budget is reached (or shutdown began).
     pub done: bool,
@@ -136,11 +140,12 @@ pub struct Ack {
 }
 
 /// A component stuck for `for_s` seconds (named by the watchdog).
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Stall {
     /// `ingest`, `trainer`, `rate_limiter` or `actor:<name>`.
     pub component: String,
     /// Seconds since it last made progress (as seen at heartbeats).
+    #[serde(deserialize_with = "f64_or_nan")]
     pub for_s: f64,
     /// What it is not doing.
     pub what: String,
@@ -162,4 +167,10 @@ pub struct Progress {
     pub trainer_last_error: Option<String>,
     /// Per actor.
     pub actors: Vec<ActorCounters>,
+}
+
+/// An `f64` written by serde_json, which writes NaN and ±∞ as `null`: read back as NaN, so a
+/// summary of a run whose losses diverged still reads.
+pub fn f64_or_nan<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
 }

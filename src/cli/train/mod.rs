@@ -27,7 +27,7 @@ use dvnav_config::Config;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
-use summary::{merge_summaries, read_json};
+use summary::merge_summaries;
 use supervisor::{
     ActorFailure, ActorLaunch, ActorSlot, Proc, RESTART_BACKOFF_FIRST, Restarts, signal, spawn,
     tail, write_pids,
@@ -287,28 +287,29 @@ pub(super) fn run_one(args: TrainArgs) -> anyhow::Result<ExitCode> {
     let _ = std::fs::remove_file(out.join("pids.json"));
 
     let summary =
-        merge_summaries(&out, &learner, &actors, &failures, started.elapsed().as_secs_f64())?;
+        merge_summaries(&out, &learner, &actors, &failures, started.elapsed().as_secs_f64());
     std::fs::write(out.join("run_summary.json"), serde_json::to_vec_pretty(&summary)?)?;
-    let clean = summary["clean_shutdown"].as_bool().unwrap_or(false);
     eprintln!("{last_line}");
-    let sent = match summary["unreported_actors"].as_array().map(Vec::len).unwrap_or(0) {
-        0 => format!("{} steps sent", summary["transitions_sent"]),
+    let sent = match summary.unreported_actors.len() {
+        0 => format!("{} steps sent", summary.transitions_sent),
         n => format!(
             "{} steps sent (+ what {n} killed actor process{} sent)",
-            summary["transitions_sent"],
+            summary.transitions_sent,
             if n == 1 { "" } else { "es" }
         ),
     };
+    // `null` where the learner wrote no summary, as in run_summary.json.
+    let n = |v: Option<u64>| v.map_or("null".to_string(), |v| v.to_string());
     eprintln!(
         "dvnav train: done in {:.0} s: {sent}, {} received, {} rejected, {} episodes, {} updates, weights v{}, {} actor restart{}; summary {}",
         started.elapsed().as_secs_f64(),
-        summary["transitions_received"],
-        summary["transitions_rejected"],
-        summary["episodes"],
-        summary["updates"],
-        summary["weight_version"],
-        summary["actor_restarts"],
-        if summary["actor_restarts"] == 1 { "" } else { "s" },
+        n(summary.transitions_received),
+        n(summary.transitions_rejected),
+        n(summary.episodes),
+        n(summary.updates),
+        n(summary.weight_version),
+        summary.actor_restarts,
+        if summary.actor_restarts == 1 { "" } else { "s" },
         out.join("run_summary.json").display()
     );
     if !learner_status.success() {
@@ -318,7 +319,7 @@ pub(super) fn run_one(args: TrainArgs) -> anyhow::Result<ExitCode> {
         );
         return Ok(ExitCode::FAILURE);
     }
-    Ok(if clean { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+    Ok(if summary.clean_shutdown { ExitCode::SUCCESS } else { ExitCode::FAILURE })
 }
 
 /// The progress line: the same headline figures as the learner's `/metrics` (rates over the

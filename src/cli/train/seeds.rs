@@ -1,9 +1,11 @@
 //! `dvnav train --seeds N`: the same config trained with N seeds one after the other, and the
 //! table and `seeds_summary.json` that compare them.
 
-use super::{TrainArgs, default_out, read_json, run_one};
+use super::summary::{RunSummary, read_json};
+use super::{TrainArgs, default_out, run_one};
+use dvnav_learner::curriculum::StageChange;
 use dvnav_learner::metrics::csv_log;
-use serde_json::{Value, json};
+use serde::Serialize;
 use std::path::Path;
 use std::process::ExitCode;
 
@@ -25,38 +27,60 @@ pub(super) fn run_seeds(args: TrainArgs, n: usize) -> anyhow::Result<ExitCode> {
         rows.push(seed_row(seed, &dir));
     }
     eprintln!("\nseed  stage  skilled at (steps)  time to skill (s)  wall (s)");
+    let opt = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.0}"));
     for r in &rows {
-        let opt = |v: &Value| v.as_f64().map_or("-".to_string(), |x| format!("{x:.0}"));
         eprintln!(
             "{:<5} {:<6} {:<19} {:<18} {}",
-            r["seed"],
-            r["stage"],
-            opt(&r["skilled_env_steps"]),
-            opt(&r["time_to_skill_s"]),
-            opt(&r["wall_time_s"])
+            r.seed,
+            r.stage.map_or("-".to_string(), |s| s.to_string()),
+            opt(r.skilled_env_steps.map(|n| n as f64)),
+            opt(r.time_to_skill_s),
+            opt(r.wall_time_s)
         );
     }
-    let skilled = rows.iter().filter(|r| !r["skilled_env_steps"].is_null()).count();
+    let skilled = rows.iter().filter(|r| r.skilled_env_steps.is_some()).count();
     eprintln!("{skilled} of {n} seeds reached the last room's threshold");
-    let summary = json!({ "seeds": rows, "skilled": skilled, "runs": n });
+    let summary = SeedsSummary { seeds: rows, skilled, runs: n };
     std::fs::write(out.join("seeds_summary.json"), serde_json::to_vec_pretty(&summary)?)?;
     Ok(if all_ok { ExitCode::SUCCESS } else { ExitCode::FAILURE })
 }
 
-/// One seed's line of `seeds_summary.json`, from its run directory.
-pub(super) fn seed_row(seed: u64, dir: &Path) -> Value {
-    let s = read_json(&dir.join("run_summary.json")).unwrap_or(Value::Null);
-    let skilled_steps = s["skilled"]["env_steps"].as_u64();
-    json!({
-        "seed": seed,
-        "run_dir": dir.display().to_string(),
-        "stage": s["stage"],
-        "stage_changes": s["stage_changes"],
-        "skilled_env_steps": skilled_steps,
-        "time_to_skill_s": skilled_steps.and_then(|n| time_at_steps(dir, n)),
-        "wall_time_s": s["wall_time_s"],
-        "env_steps": s["transitions_received"],
-    })
+/// `seeds_summary.json`.
+#[derive(Serialize)]
+struct SeedsSummary {
+    seeds: Vec<SeedRow>,
+    /// Seeds whose last room reached the curriculum threshold.
+    skilled: usize,
+    runs: usize,
+}
+
+/// One seed's line of `seeds_summary.json`.
+#[derive(Serialize)]
+pub(super) struct SeedRow {
+    seed: u64,
+    run_dir: String,
+    stage: Option<u32>,
+    stage_changes: Option<Vec<StageChange>>,
+    skilled_env_steps: Option<u64>,
+    time_to_skill_s: Option<f64>,
+    wall_time_s: Option<f64>,
+    env_steps: Option<u64>,
+}
+
+/// One seed's row, from its run directory's `run_summary.json` (all `None` without one).
+pub(super) fn seed_row(seed: u64, dir: &Path) -> SeedRow {
+    let s: Option<RunSummary> = read_json(&dir.join("run_summary.json"));
+    let skilled_env_steps = s.as_ref().and_then(|s| s.skilled.as_ref()).map(|c| c.env_steps);
+    SeedRow {
+        seed,
+        run_dir: dir.display().to_string(),
+        stage: s.as_ref().and_then(|s| s.stage),
+        stage_changes: s.as_ref().and_then(|s| s.stage_changes.clone()),
+        skilled_env_steps,
+        time_to_skill_s: skilled_env_steps.and_then(|n| time_at_steps(dir, n)),
+        wall_time_s: s.as_ref().map(|s| s.wall_time_s),
+        env_steps: s.as_ref().and_then(|s| s.transitions_received),
+    }
 }
 
 /// Wall time (s) at which the run's `metrics.csv` first shows `steps` environment steps.

@@ -44,7 +44,7 @@ impl Proc {
 }
 
 /// A failed actor process and what the supervisor did about it.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub(super) struct ActorFailure {
     /// The actor it ran as (`actor-0`).
     pub(super) actor: String,
