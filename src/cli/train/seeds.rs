@@ -88,3 +88,38 @@ pub fn time_at_steps(dir: &Path, steps: u64) -> Option<f64> {
     let rows = csv_log::read(&dir.join("metrics.csv")).ok()?;
     rows.iter().find(|r| r.env_steps >= steps && r.time_s.is_finite()).map(|r| r.time_s)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SUMMARY: &str = r#"{
+        "transitions_sent": 700, "transitions_received": 700, "transitions_accounted": true,
+        "unreported_actors": [], "transitions_received_from_unreported": 0, "stage": 3,
+        "skilled": {"stage": 3, "room": "env3", "env_steps": 500, "updates": 90},
+        "wall_time_s": 12.5, "env_steps_per_s": 56.0, "updates_per_s": 7.2,
+        "clean_shutdown": true, "actor_restarts": 0, "restarts": {}, "actor_failures": [],
+        "actors": []
+    }"#;
+
+    #[test]
+    fn a_seed_row_reads_the_typed_run_summary_and_the_time_to_skill_from_metrics_csv() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("run_summary.json"), SUMMARY).unwrap();
+        std::fs::write(dir.path().join("metrics.csv"), "time_s,env_steps\n1.0,100\n2.5,600\n")
+            .unwrap();
+        let row = seed_row(7, dir.path());
+        assert_eq!((row.seed, row.stage, row.skilled_env_steps), (7, Some(3), Some(500)));
+        assert_eq!((row.time_to_skill_s, row.wall_time_s), (Some(2.5), Some(12.5)));
+        assert_eq!(row.env_steps, Some(700));
+    }
+
+    #[test]
+    fn a_summary_with_a_renamed_field_is_refused_whole_not_read_as_nulls() {
+        let dir = tempfile::tempdir().unwrap();
+        let renamed = SUMMARY.replace("\"wall_time_s\"", "\"wall_s\"");
+        std::fs::write(dir.path().join("run_summary.json"), renamed).unwrap();
+        let row = seed_row(7, dir.path());
+        assert_eq!((row.stage, row.skilled_env_steps, row.wall_time_s), (None, None, None));
+    }
+}
