@@ -17,11 +17,11 @@ use dvnav_proto::MAX_MESSAGE_BYTES;
 use pb::learner_client::LearnerClient;
 use serde::Serialize;
 use std::collections::VecDeque;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};
 use tokio_stream::wrappers::ReceiverStream;
+use tokio_util::sync::CancellationToken;
 use tonic::metadata::{Ascii, MetadataValue};
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Channel, ClientTlsConfig, Endpoint};
@@ -359,7 +359,7 @@ pub async fn run_link(
     first: Registered,
     mut batches: mpsc::Receiver<TransitionBatch>,
     variables: watch::Sender<Option<Arc<Variables>>>,
-    stop: Arc<AtomicBool>,
+    stop: CancellationToken,
 ) -> LinkCounters {
     let outbox = Mutex::new(Outbox::new(first.next_sequence));
     let counters = Mutex::new(LinkCounters::default());
@@ -386,8 +386,7 @@ pub async fn run_link(
             // A learner that already said stop is finishing its run and will not come back;
             // neither will one this actor was told locally to leave.
             let learner_said_stop = variables.borrow().as_ref().is_some_and(|v| v.stop);
-            if (stop.load(Ordering::Relaxed) || learner_said_stop)
-                && lost_at.elapsed() > GIVE_UP_AFTER_STOP
+            if (stop.is_cancelled() || learner_said_stop) && lost_at.elapsed() > GIVE_UP_AFTER_STOP
             {
                 break None;
             }
