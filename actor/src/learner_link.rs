@@ -162,7 +162,7 @@ pub fn variables_from_proto(u: pb::VariablesUpdate) -> Variables {
     let (stage, room) = u.assignment.map(|a| (a.stage, a.room)).unwrap_or_default();
     Variables {
         version: u.version,
-        policy: Arc::new(u.safetensors),
+        policy: Arc::new(u.safetensors.into()),
         stage,
         room,
         warmup: u.warmup,

@@ -133,7 +133,7 @@ async fn variables_stream_delivers_weights_and_ends_at_shutdown() {
     let id = c.register(register("a", PROTOCOL_VERSION)).await.unwrap().into_inner().actor_id;
     let mut vars = c.variables(VariablesRequest { actor_id: id }).await.unwrap().into_inner();
     let first = vars.message().await.unwrap().unwrap();
-    assert_eq!((first.version, first.safetensors.as_slice()), (1, &[1u8, 2, 3][..]));
+    assert_eq!((first.version, &first.safetensors[..]), (1, &[1u8, 2, 3][..]));
     s.state.variables().publish_weights(vec![9; 5_000_000]);
     let second = vars.message().await.unwrap().unwrap();
     assert_eq!(

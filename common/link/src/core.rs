@@ -140,7 +140,8 @@ pub trait Adder {
 pub struct Variables {
     /// Weight version, increasing from 1.
     pub version: u64,
-    /// Policy weights as safetensors bytes (see [`dvnav_nav::weights`]).
+    /// Policy weights as safetensors bytes (see `dvnav_nav::weights`), serialized once per
+    /// version; every actor's stream sends this one buffer ([`crate::wire::policy_bytes`]).
     pub policy: Arc<Vec<u8>>,
     /// Curriculum stage this actor should run.
     pub stage: u32,

@@ -5,10 +5,12 @@
 //! reaches the replay buffer.
 
 use crate::core::{EpisodeStats, TransitionBatch};
+use bytes::Bytes;
 use dvnav_proto as pb;
 use dvnav_sim::Outcome;
 use dvnav_sim::obs::ACTION_DIM;
 use std::fmt;
+use std::sync::Arc;
 
 /// Largest |reward| accepted; the task's rewards are bounded by r_s, r_c and the progress term.
 pub const MAX_ABS_REWARD: f32 = 1.0e3;
@@ -69,6 +71,21 @@ pub fn batch_to_proto(
         truncated: batch.truncated.clone(),
         policy_versions: batch.policy_versions.clone(),
         episodes: batch.episodes.iter().map(episode_to_proto).collect(),
+    }
+}
+
+/// A version's policy weights as the wire's `Bytes`, sharing their buffer: every actor's
+/// `Variables` stream sends the one serialization of a version, none copies it.
+pub fn policy_bytes(policy: &Arc<Vec<u8>>) -> Bytes {
+    Bytes::from_owner(SharedWeights(policy.clone()))
+}
+
+/// Keeps a version's weights alive while some stream still sends them.
+struct SharedWeights(Arc<Vec<u8>>);
+
+impl AsRef<[u8]> for SharedWeights {
+    fn as_ref(&self) -> &[u8] {
+        &self.0
     }
 }
 
@@ -229,6 +246,17 @@ mod tests {
         }
         assert!(decoded > 1_000, "the damaged inputs exercised validation ({decoded} decoded)");
         assert!(accepted < decoded, "validation refused some ({accepted} of {decoded})");
+    }
+
+    #[test]
+    fn the_weights_are_shared_not_copied() {
+        let w = Arc::new(vec![7u8; 1000]);
+        let (a, b) = (policy_bytes(&w), policy_bytes(&w));
+        assert_eq!(&a[..], &w[..]);
+        assert_eq!((a.as_ptr(), b.as_ptr()), (w.as_ptr(), w.as_ptr()));
+        assert_eq!(Arc::strong_count(&w), 3);
+        drop((a, b));
+        assert_eq!(Arc::strong_count(&w), 1);
     }
 
     #[test]
