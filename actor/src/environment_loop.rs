@@ -1,5 +1,6 @@
 //! The environment loop (Acme's EnvironmentLoop): step K environments with one batched policy
-//! forward pass, hand every transition to an [`Adder`], report finished episodes, follow the
+//! forward pass, hand every observation once to an [`Adder`] (an episode's first with
+//! `add_first`, each step's result with `add`), report finished episodes, follow the
 //! learner's variables (weights, stage, warm-up, stop), and log selected episodes to MCAP.
 //!
 //! It knows nothing about the network: the actor process plugs in the gRPC adder and variable
@@ -128,6 +129,9 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
             this.episodes.push(info);
         }
         this.envs.write_obs(&mut this.obs);
+        for i in 0..n {
+            this.adder.add_first(i, &this.obs[i * d..(i + 1) * d])?;
+        }
         Ok(this)
     }
 
@@ -249,7 +253,7 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
             let terminated = out.done.is_some_and(|o| o.is_terminal());
             let truncated = out.done == Some(Outcome::Timeout);
             self.adder.add(
-                &self.obs[i * d..(i + 1) * d],
+                i,
                 self.actions[i],
                 out.reward,
                 &self.next_obs[i * d..(i + 1) * d],
@@ -328,6 +332,7 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
                 self.envs.envs_mut()[i].reset();
                 self.episodes[i] = self.new_episode_in(i, warmup, stage)?;
                 self.envs.envs()[i].write_obs(&mut self.next_obs[i * d..(i + 1) * d]);
+                self.adder.add_first(i, &self.next_obs[i * d..(i + 1) * d])?;
             }
         }
         std::mem::swap(&mut self.obs, &mut self.next_obs);

@@ -66,7 +66,7 @@ fn endpoint(url: &str, tls: Option<&ClientTlsConfig>) -> anyhow::Result<Endpoint
     Ok(dvnav_tls::endpoint(url, tls)
         .map_err(|e| anyhow::anyhow!("learner address {url:?}: {e:#}"))?
         .connect_timeout(Duration::from_secs(5))
-        // Windows sized for ~0.5 MB batches and ~1 MB weights, as on the learner's side.
+        // Windows sized for ~0.3 MB batches and ~1 MB weights, as on the learner's side.
         .initial_stream_window_size(4 << 20)
         .initial_connection_window_size(16 << 20)
         .http2_keep_alive_interval(Duration::from_secs(5))

@@ -64,7 +64,7 @@ impl LearnerService {
 }
 
 /// The HTTP/2 server for the learner service, over TLS with `tls` (`--tls-cert`, see
-/// [`dvnav_tls`]). Flow-control windows are sized for ~0.5 MB batches and ~1 MB weight
+/// [`dvnav_tls`]). Flow-control windows are sized for ~0.3 MB batches and ~1 MB weight
 /// messages (with the 64 KiB defaults every 64 KiB of a message waits for a window update);
 /// keepalive pings notice an actor whose machine vanished.
 pub fn transport_server(

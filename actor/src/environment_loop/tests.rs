@@ -1,17 +1,21 @@
 use super::*;
-use dvnav_link::core::{TransitionBatch, Variables};
+use dvnav_link::core::{BatchWriter, TransitionBatch, Variables};
 use dvnav_nav::nets::{Actor, init_seeded, varmap_to_safetensors};
 
-/// Collects everything in memory.
+/// Collects everything in memory, in one batch handed over at the end.
 #[derive(Default)]
 struct VecAdder {
+    writer: Option<BatchWriter>,
     batch: TransitionBatch,
 }
 
 impl Adder for VecAdder {
+    fn add_first(&mut self, env: usize, obs: &[f32]) -> anyhow::Result<()> {
+        self.writer.get_or_insert_with(|| BatchWriter::new(obs.len(), 0)).add_first(env, obs)
+    }
     fn add(
         &mut self,
-        obs: &[f32],
+        env: usize,
         action: [f32; ACTION_DIM],
         reward: f32,
         next_obs: &[f32],
@@ -19,15 +23,19 @@ impl Adder for VecAdder {
         truncated: bool,
         policy_version: u64,
     ) -> anyhow::Result<()> {
-        self.batch.obs_dim = obs.len();
-        self.batch.push(obs, action, reward, next_obs, terminated, truncated, policy_version);
-        Ok(())
+        let w = self.writer.as_mut().ok_or_else(|| anyhow::anyhow!("a step before add_first"))?;
+        w.add(env, action, reward, next_obs, terminated, truncated, policy_version)
     }
     fn add_episode(&mut self, stats: EpisodeStats) -> anyhow::Result<()> {
-        self.batch.episodes.push(stats);
+        self.writer.as_mut().expect("episodes come after steps").add_episode(stats);
         Ok(())
     }
+    /// Called once, by `EnvironmentLoop::finish`.
     fn flush(&mut self) -> anyhow::Result<()> {
+        if let Some(w) = self.writer.as_mut() {
+            anyhow::ensure!(self.batch.is_empty(), "flushed twice");
+            self.batch = w.take();
+        }
         Ok(())
     }
 }
@@ -169,11 +177,7 @@ fn transitions_chain_and_episodes_are_reported() {
         if b.terminated[i] || b.truncated[i] {
             continue;
         }
-        assert_eq!(
-            &b.next_observations[i * d..(i + 1) * d],
-            &b.observations[(i + 3) * d..(i + 4) * d],
-            "transition {i}"
-        );
+        assert_eq!(b.next_obs(i), &b.observations[(i + 3) * d..(i + 4) * d], "transition {i}");
     }
     // Timeouts are truncations, never terminations; episode lengths respect T_max.
     assert!(b.episodes.iter().all(|e| e.steps <= 60));
@@ -240,7 +244,7 @@ fn radius_input_transitions_carry_each_episodes_drawn_radius() {
         assert!((0.2..=0.5).contains(&r), "{r}");
         seen.insert(r.to_bits());
         if !(b.terminated[i] || b.truncated[i]) {
-            assert_eq!(radius(&b.next_observations, i), r, "one radius per episode");
+            assert_eq!(radius(b.next_obs(i), 0), r, "one radius per episode");
         }
     }
     // A radius of its own for every episode (the finished ones and up to 3 still open).

@@ -4,7 +4,7 @@
 //! length and value and never panics: a batch that fails any check is refused whole and never
 //! reaches the replay buffer.
 
-use crate::core::{EpisodeStats, TransitionBatch};
+use crate::core::{EpisodeStats, NextObs, TransitionBatch};
 use bytes::Bytes;
 use dvnav_proto as pb;
 use dvnav_sim::Outcome;
@@ -53,24 +53,73 @@ fn check_finite(field: &'static str, v: &[f32]) -> Result<(), WireError> {
     }
 }
 
+/// Rows of `next_observations`: whole rows, no more than transitions (each is one's next).
+fn last_rows(v: &[f32], obs_dim: usize, n: usize) -> Result<usize, WireError> {
+    let field = "next_observations";
+    if obs_dim == 0 {
+        return if v.is_empty() { Ok(0) } else { Err(err(field, "values for empty observations")) };
+    }
+    if !v.len().is_multiple_of(obs_dim) {
+        return Err(err(field, format!("has {} values, not whole rows of {obs_dim}", v.len())));
+    }
+    let rows = v.len() / obs_dim;
+    if rows > n {
+        return Err(err(field, format!("has {rows} rows for {n} transitions")));
+    }
+    Ok(rows)
+}
+
+/// The pairing of `n` transitions with `last` rows of `next_observations`.
+fn pairing(index: &[u32], n: usize, last: usize) -> Result<Vec<NextObs>, WireError> {
+    let field = "next_obs_index";
+    let mut named = vec![false; n + last];
+    let mut next = Vec::with_capacity(n);
+    for (i, &v) in index.iter().enumerate() {
+        let r = v as usize;
+        if r >= n + last {
+            return Err(err(field, format!("transition {i} names row {r} of {}", n + last)));
+        }
+        if r <= i {
+            return Err(err(field, format!("transition {i} continues into row {r}, not later")));
+        }
+        if std::mem::replace(&mut named[r], true) {
+            return Err(err(field, format!("row {r} is the next observation of two transitions")));
+        }
+        next.push(if r < n { NextObs::Step(v) } else { NextObs::Last((r - n) as u32) });
+    }
+    if let Some(k) = named[n..].iter().position(|&x| !x) {
+        return Err(err("next_observations", format!("row {k} is no transition's next")));
+    }
+    Ok(next)
+}
+
 /// Encodes a batch for the wire.
 pub fn batch_to_proto(
     batch: &TransitionBatch,
     actor_id: u32,
     sequence: u64,
 ) -> pb::TransitionBatch {
+    let n = batch.len() as u32;
     pb::TransitionBatch {
         actor_id,
         sequence,
-        count: batch.len() as u32,
+        count: n,
         observations: batch.observations.clone(),
         actions: batch.actions.clone(),
         rewards: batch.rewards.clone(),
-        next_observations: batch.next_observations.clone(),
         terminated: batch.terminated.clone(),
         truncated: batch.truncated.clone(),
         policy_versions: batch.policy_versions.clone(),
         episodes: batch.episodes.iter().map(episode_to_proto).collect(),
+        next_observations: batch.next_observations.clone(),
+        next_obs_index: batch
+            .next
+            .iter()
+            .map(|&x| match x {
+                NextObs::Step(j) => j,
+                NextObs::Last(k) => n.saturating_add(k),
+            })
+            .collect(),
     }
 }
 
@@ -123,8 +172,11 @@ pub fn episode_to_proto(e: &EpisodeStats) -> pb::EpisodeStats {
 }
 
 /// Decodes and validates a batch of `obs_dim`-long observations. Checks: count within bounds,
-/// every array of the right length, all floats finite, actions in [−1, 1], |reward| ≤
-/// [`MAX_ABS_REWARD`], no transition both terminated and truncated, episode outcomes known.
+/// every array of the right length (`next_observations` whole rows), all floats finite, actions
+/// in [−1, 1], |reward| ≤ [`MAX_ABS_REWARD`], no transition both terminated and truncated, the
+/// pairing sound (every `next_obs_index` inside the batch, a row of `observations` only for a
+/// later transition, no row named twice, every row of `next_observations` named), episode
+/// outcomes known.
 pub fn batch_from_proto(
     msg: pb::TransitionBatch,
     obs_dim: usize,
@@ -134,7 +186,8 @@ pub fn batch_from_proto(
         return Err(err("count", format!("{n} exceeds the limit of {MAX_BATCH_TRANSITIONS}")));
     }
     check_len("observations", &msg.observations, n * obs_dim)?;
-    check_len("next_observations", &msg.next_observations, n * obs_dim)?;
+    let last = last_rows(&msg.next_observations, obs_dim, n)?;
+    check_len("next_obs_index", &msg.next_obs_index, n)?;
     check_len("actions", &msg.actions, n * ACTION_DIM)?;
     check_len("rewards", &msg.rewards, n)?;
     check_len("terminated", &msg.terminated, n)?;
@@ -156,6 +209,7 @@ pub fn batch_from_proto(
     if let Some(i) = (0..n).find(|&i| msg.terminated[i] && msg.truncated[i]) {
         return Err(err("truncated", format!("transition {i} is both terminated and truncated")));
     }
+    let next = pairing(&msg.next_obs_index, n, last)?;
     let mut episodes = Vec::with_capacity(msg.episodes.len());
     for (i, e) in msg.episodes.into_iter().enumerate() {
         let outcome = outcome_from_proto(e.outcome).ok_or_else(|| {
@@ -178,9 +232,10 @@ pub fn batch_from_proto(
     Ok(TransitionBatch {
         obs_dim,
         observations: msg.observations,
+        next_observations: msg.next_observations,
+        next,
         actions: msg.actions,
         rewards: msg.rewards,
-        next_observations: msg.next_observations,
         terminated: msg.terminated,
         truncated: msg.truncated,
         policy_versions: msg.policy_versions,
@@ -207,6 +262,35 @@ mod tests {
             warmup: false,
         });
         b
+    }
+
+    /// Two environments interleaved through a [`BatchWriter`]: steps continued in the batch,
+    /// an episode end, and both environments' newest observations at the end.
+    fn interleaved() -> TransitionBatch {
+        let mut w = crate::core::BatchWriter::new(3, 8);
+        w.add_first(0, &[0.0; 3]).unwrap();
+        w.add_first(1, &[5.0; 3]).unwrap();
+        for t in 1..=4 {
+            let x = t as f32;
+            w.add(0, [0.1, 0.2], x, &[x; 3], false, false, 2).unwrap();
+            w.add(1, [0.3, 0.4], -x, &[5.0 + x; 3], t == 2, false, 2).unwrap();
+            if t == 2 {
+                w.add_first(1, &[9.0; 3]).unwrap();
+            }
+        }
+        w.take()
+    }
+
+    /// Whatever passes validation is internally consistent: every transition's observations
+    /// are there, whole.
+    fn assert_consistent(b: &TransitionBatch) {
+        assert_eq!(b.observations.len(), b.len() * 3);
+        assert_eq!(b.next.len(), b.len());
+        for i in 0..b.len() {
+            assert_eq!((b.obs(i).len(), b.next_obs(i).len()), (3, 3));
+        }
+        assert_eq!(b.actions.len(), b.len() * ACTION_DIM);
+        assert!(b.rewards.iter().all(|r| r.is_finite()));
     }
 
     /// Untrusted bytes never panic the decoder: random buffers, truncations and byte flips of
@@ -237,15 +321,58 @@ mod tests {
                 if let Ok(b) = batch_from_proto(msg, 3) {
                     accepted += 1;
                     // Whatever passes is internally consistent.
-                    assert_eq!(b.observations.len(), b.len() * 3);
-                    assert_eq!(b.next_observations.len(), b.len() * 3);
-                    assert_eq!(b.actions.len(), b.len() * ACTION_DIM);
-                    assert!(b.rewards.iter().all(|r| r.is_finite()));
+                    assert_consistent(&b);
                 }
             }
         }
         assert!(decoded > 1_000, "the damaged inputs exercised validation ({decoded} decoded)");
         assert!(accepted < decoded, "validation refused some ({accepted} of {decoded})");
+    }
+
+    /// The pairing fields damaged on purpose (indices anywhere, repeated or dropped rows,
+    /// counts off by one): refused or consistent, never a panic.
+    #[test]
+    fn damaged_pairings_never_panic() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+        let valid = batch_to_proto(&interleaved(), 1, 0);
+        let (n, rows) = (valid.count, (valid.next_observations.len() / 3) as u32);
+        let mut accepted = 0;
+        for _ in 0..20_000 {
+            let mut m = valid.clone();
+            for _ in 0..rng.random_range(1..4) {
+                // At most 3 pops of 8: never empty.
+                let len = m.next_obs_index.len();
+                let i = rng.random_range(0..len);
+                match rng.random_range(0..7) {
+                    0 => m.next_obs_index[i] = rng.random(),
+                    1 => m.next_obs_index[i] = rng.random_range(0..n + rows + 2),
+                    2 => m.next_obs_index.swap(i, rng.random_range(0..len)),
+                    3 => {
+                        m.next_obs_index.pop();
+                    }
+                    4 => m.next_obs_index.push(rng.random_range(0..2 * n)),
+                    5 => m
+                        .next_observations
+                        .truncate(rng.random_range(0..=valid.next_observations.len())),
+                    _ => m.next_observations.extend([1.0; 3]),
+                }
+            }
+            if let Ok(b) = batch_from_proto(m, 3) {
+                accepted += 1;
+                assert_consistent(&b);
+            }
+        }
+        assert!((1..20_000).contains(&accepted), "{accepted} accepted");
+    }
+
+    #[test]
+    fn round_trips() {
+        let b = sample();
+        assert_eq!(batch_from_proto(batch_to_proto(&b, 1, 0), 3).unwrap(), b);
+        let b = interleaved();
+        assert_eq!((b.len(), b.last_rows()), (8, 3));
+        assert_eq!(batch_from_proto(batch_to_proto(&b, 1, 0), 3).unwrap(), b);
     }
 
     #[test]
@@ -257,12 +384,6 @@ mod tests {
         assert_eq!(Arc::strong_count(&w), 3);
         drop((a, b));
         assert_eq!(Arc::strong_count(&w), 1);
-    }
-
-    #[test]
-    fn round_trips() {
-        let b = sample();
-        assert_eq!(batch_from_proto(batch_to_proto(&b, 1, 0), 3).unwrap(), b);
     }
 
     #[test]
@@ -286,5 +407,32 @@ mod tests {
         let mut m = good;
         m.count = u32::MAX;
         assert_eq!(batch_from_proto(m, 3).unwrap_err().field, "count");
+        // The pairing: `interleaved` has 8 transitions and 3 rows of `next_observations`.
+        let good = batch_to_proto(&interleaved(), 1, 0);
+        let field = |f: &dyn Fn(&mut pb::TransitionBatch)| {
+            let mut m = good.clone();
+            f(&mut m);
+            batch_from_proto(m, 3).unwrap_err().field
+        };
+        assert_eq!(field(&|m| m.next_obs_index[0] = 11), "next_obs_index", "beyond the rows");
+        assert_eq!(field(&|m| m.next_obs_index[3] = 2), "next_obs_index", "an earlier step");
+        assert_eq!(field(&|m| m.next_obs_index[3] = 3), "next_obs_index", "itself");
+        let twice = |m: &mut pb::TransitionBatch| m.next_obs_index[1] = m.next_obs_index[0];
+        assert_eq!(field(&twice), "next_obs_index", "a row named twice");
+        assert_eq!(
+            field(&|m| {
+                m.next_obs_index.pop();
+            }),
+            "next_obs_index"
+        );
+        assert_eq!(
+            field(&|m| {
+                m.next_observations.pop();
+            }),
+            "next_observations"
+        );
+        let unnamed = |m: &mut pb::TransitionBatch| m.next_observations.extend([0.0; 3]);
+        assert_eq!(field(&unnamed), "next_observations", "a row nobody continues into");
+        assert_eq!(field(&|m| m.next_observations[4] = f32::INFINITY), "next_observations");
     }
 }

@@ -70,24 +70,6 @@ impl ObsCodec {
         out.extend(scan.iter().map(|&q| q as f32 * self.scale));
         out.extend_from_slice(extra);
     }
-
-    /// A fast hash of a stored observation, to find the step that continues a transition.
-    /// Equal stored forms hash equally; a match is confirmed by comparing the data.
-    pub fn hash(scan: &[u16], extra: &[f32]) -> u64 {
-        const K: u64 = 0x9E37_79B9_7F4A_7C15;
-        let mut h = (scan.len() as u64).wrapping_mul(K);
-        for c in scan.chunks(4) {
-            let mut x = 0u64;
-            for (i, &q) in c.iter().enumerate() {
-                x |= (q as u64) << (16 * i);
-            }
-            h = (h.rotate_left(23) ^ x).wrapping_mul(K);
-        }
-        for &e in extra {
-            h = (h.rotate_left(23) ^ e.to_bits() as u64).wrapping_mul(K);
-        }
-        h ^ (h >> 29)
-    }
 }
 
 #[cfg(test)]
@@ -124,14 +106,5 @@ mod tests {
         c.decode(&s, &e, &mut out);
         assert_eq!(out, vec![0.1, 2e7, -3.0]);
         assert!(s.is_empty());
-    }
-
-    #[test]
-    fn the_hash_tells_observations_apart() {
-        let h = |s: &[u16], e: &[f32]| ObsCodec::hash(s, e);
-        assert_eq!(h(&[1, 2, 3], &[0.5]), h(&[1, 2, 3], &[0.5]));
-        assert_ne!(h(&[1, 2, 3], &[0.5]), h(&[1, 2, 4], &[0.5]));
-        assert_ne!(h(&[1, 2, 3], &[0.5]), h(&[1, 2, 3], &[0.25]));
-        assert_ne!(h(&[1, 2, 3, 0], &[]), h(&[1, 2, 3], &[0.0]));
     }
 }
