@@ -1,14 +1,17 @@
 //! The actor's [`Adder`]: collects transitions into batches of `actor.batch_transitions` (each
 //! observation once, paired by position: [`BatchWriter`]) and hands full batches to the
-//! transition stream through a bounded channel. When the learner pushes back, the channel fills
-//! and `add` blocks: the environment loop slows down instead of buffering without limit.
+//! transition stream through a bounded channel, encoded once ([`EncodedBatch`]) here on the
+//! loop's thread: the link sends those bytes, and sends them again after a reconnect. When the
+//! learner pushes back, the channel fills and `add` blocks: the environment loop slows down
+//! instead of buffering without limit.
 //!
 //! A batch is also handed over once its first transition is `max_delay` old (a quarter
 //! of the heartbeat interval), even part full: a slow actor still shows the learner it is alive and
 //! moving, so the watchdog can name one that stopped within a heartbeat (and the learner sees
 //! its transitions sooner).
 
-use dvnav_link::core::{Adder, BatchWriter, EpisodeStats, TransitionBatch};
+use dvnav_link::core::{Adder, BatchWriter, EpisodeStats};
+use dvnav_link::wire::EncodedBatch;
 use dvnav_sim::obs::ACTION_DIM;
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
@@ -17,7 +20,7 @@ use tokio::sync::mpsc;
 pub struct BatchingAdder {
     writer: BatchWriter,
     batch_size: usize,
-    tx: mpsc::Sender<TransitionBatch>,
+    tx: mpsc::Sender<EncodedBatch>,
     max_delay: Duration,
     /// When the batch being filled got its first transition or episode.
     opened: Option<Instant>,
@@ -32,7 +35,7 @@ impl BatchingAdder {
         obs_dim: usize,
         batch_size: usize,
         max_delay: Duration,
-        tx: mpsc::Sender<TransitionBatch>,
+        tx: mpsc::Sender<EncodedBatch>,
     ) -> Self {
         Self {
             writer: BatchWriter::new(obs_dim, batch_size),
@@ -54,7 +57,7 @@ impl BatchingAdder {
         if self.writer.is_empty() {
             return Ok(());
         }
-        let full = self.writer.take();
+        let full = EncodedBatch::new(&self.writer.take());
         self.opened = None;
         let n = full.len() as u64;
         self.tx

@@ -7,7 +7,8 @@
 //!   that pairs for it, [`core::Variables`] and [`core::VariableSource`], so an environment loop
 //!   runs against an in-process learner in tests and against the gRPC one in production.
 //! - [`wire`]: every conversion between these domain types and the wire types of
-//!   `dvnav-proto`, validating untrusted input in one place (each error names its field).
+//!   `dvnav-proto`, validating untrusted input in one place (each error names its field), and
+//!   [`wire::EncodedBatch`], a batch encoded once and sent as such however often.
 //!
 //! It sits on [`dvnav_sim`] (observation layout, [`dvnav_sim::Outcome`]) and `dvnav-proto`
 //! only; the transport's security (TLS, tokens) is `dvnav-tls`.

@@ -3,12 +3,16 @@
 //! Decoding is where untrusted input enters the learner, so [`batch_from_proto`] checks every
 //! length and value and never panics: a batch that fails any check is refused whole and never
 //! reaches the replay buffer.
+//!
+//! [`EncodedBatch`] is a batch encoded once, when the actor's adder hands it over: the stream to
+//! the learner sends those bytes, and sends them again unchanged after a reconnect.
 
 use crate::core::{EpisodeStats, NextObs, TransitionBatch};
-use bytes::Bytes;
+use bytes::{BufMut, Bytes};
 use dvnav_proto as pb;
 use dvnav_sim::Outcome;
 use dvnav_sim::obs::ACTION_DIM;
+use prost::Message;
 use std::fmt;
 use std::sync::Arc;
 
@@ -120,6 +124,48 @@ pub fn batch_to_proto(
                 NextObs::Last(k) => n.saturating_add(k),
             })
             .collect(),
+    }
+}
+
+/// A batch encoded for the wire once, when the adder hands it over; a resend after a reconnect
+/// sends the same bytes. It holds every field but `actor_id` and `sequence`, which
+/// [`EncodedBatch::write`] puts in front at each send (the actor id may change with a
+/// reconnect): protobuf merges concatenated encodings into one message, so the learner decodes
+/// the whole as any `TransitionBatch`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EncodedBatch {
+    count: u32,
+    body: Bytes,
+}
+
+impl EncodedBatch {
+    /// Encodes `batch`.
+    pub fn new(batch: &TransitionBatch) -> Self {
+        let body = batch_to_proto(batch, 0, 0).encode_to_vec();
+        Self { count: batch.len() as u32, body: Bytes::from(body) }
+    }
+
+    /// Transitions in the batch.
+    pub fn len(&self) -> usize {
+        self.count as usize
+    }
+
+    /// True when the batch has no transitions (it may still report episodes).
+    pub fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+
+    /// Bytes of the encoded fields (all but `actor_id` and `sequence`).
+    pub fn body_len(&self) -> usize {
+        self.body.len()
+    }
+
+    /// Writes the whole message, as sent by `actor_id` under `sequence`, into `buf`, a buffer
+    /// that grows (`Vec<u8>`, `BytesMut`, tonic's `EncodeBuf`); panics if it cannot.
+    pub fn write(&self, actor_id: u32, sequence: u64, buf: &mut impl BufMut) {
+        let head = pb::TransitionBatch { actor_id, sequence, ..Default::default() };
+        head.encode(buf).expect("a growable buffer");
+        buf.put_slice(&self.body);
     }
 }
 
@@ -384,6 +430,21 @@ mod tests {
         assert_eq!(Arc::strong_count(&w), 3);
         drop((a, b));
         assert_eq!(Arc::strong_count(&w), 1);
+    }
+
+    /// The bytes encoded once decode, under any actor id and sequence number, as the message
+    /// converted for them.
+    #[test]
+    fn an_encoded_batch_is_the_message_under_any_id_and_sequence() {
+        let b = interleaved();
+        let e = EncodedBatch::new(&b);
+        assert_eq!(e.len(), 8);
+        for (id, seq) in [(0, 0), (3, 9), (u32::MAX, u64::MAX)] {
+            let mut buf = Vec::new();
+            e.write(id, seq, &mut buf);
+            let m = pb::TransitionBatch::decode(buf.as_slice()).unwrap();
+            assert_eq!(m, batch_to_proto(&b, id, seq));
+        }
     }
 
     #[test]
