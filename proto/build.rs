@@ -16,7 +16,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let fds = protox::compile(PROTOS, ["proto"])?;
     let out = PathBuf::from(env::var("OUT_DIR")?);
     std::fs::write(out.join("dvnav_descriptor.bin"), fds.encode_to_vec())?;
-    tonic_prost_build::configure().build_server(true).build_client(true).compile_fds(fds)?;
+    // The weights go out as `Bytes`: serialized once per version, shared by every actor's stream.
+    tonic_prost_build::configure()
+        .build_server(true)
+        .build_client(true)
+        .bytes(".dvnav.v1.VariablesUpdate.safetensors")
+        .compile_fds(fds)?;
     let controller = protox::compile(CONTROLLER_PROTOS, ["proto"])?;
     tonic_prost_build::configure().build_server(true).build_client(true).compile_fds(controller)?;
     Ok(())

@@ -1,23 +1,26 @@
-//! The actor's [`Adder`]: collects transitions into batches of `actor.batch_transitions` and
-//! hands full batches to the transition stream through a bounded channel. When the learner
-//! pushes back, the channel fills and `add` blocks: the environment loop slows down instead of
-//! buffering without limit.
+//! The actor's [`Adder`]: collects transitions into batches of `actor.batch_transitions` (each
+//! observation once, paired by position: [`BatchWriter`]) and hands full batches to the
+//! transition stream through a bounded channel, encoded once ([`EncodedBatch`]) here on the
+//! loop's thread: the link sends those bytes, and sends them again after a reconnect. When the
+//! learner pushes back, the channel fills and `add` blocks: the environment loop slows down
+//! instead of buffering without limit.
 //!
 //! A batch is also handed over once its first transition is `max_delay` old (a quarter
 //! of the heartbeat interval), even part full: a slow actor still shows the learner it is alive and
 //! moving, so the watchdog can name one that stopped within a heartbeat (and the learner sees
 //! its transitions sooner).
 
-use dvnav_link::core::{Adder, EpisodeStats, TransitionBatch};
+use dvnav_link::core::{Adder, BatchWriter, EpisodeStats};
+use dvnav_link::wire::EncodedBatch;
 use dvnav_sim::obs::ACTION_DIM;
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
 
 /// Batches transitions for the gRPC stream.
 pub struct BatchingAdder {
-    batch: TransitionBatch,
+    writer: BatchWriter,
     batch_size: usize,
-    tx: mpsc::Sender<TransitionBatch>,
+    tx: mpsc::Sender<EncodedBatch>,
     max_delay: Duration,
     /// When the batch being filled got its first transition or episode.
     opened: Option<Instant>,
@@ -32,10 +35,10 @@ impl BatchingAdder {
         obs_dim: usize,
         batch_size: usize,
         max_delay: Duration,
-        tx: mpsc::Sender<TransitionBatch>,
+        tx: mpsc::Sender<EncodedBatch>,
     ) -> Self {
         Self {
-            batch: TransitionBatch::with_capacity(obs_dim, batch_size),
+            writer: BatchWriter::new(obs_dim, batch_size),
             batch_size,
             tx,
             max_delay,
@@ -47,15 +50,14 @@ impl BatchingAdder {
     /// Notes the batch's first content, and whether it is due: full, or open for `max_delay`.
     fn due(&mut self) -> bool {
         let opened = *self.opened.get_or_insert_with(Instant::now);
-        self.batch.len() >= self.batch_size || opened.elapsed() >= self.max_delay
+        self.writer.len() >= self.batch_size || opened.elapsed() >= self.max_delay
     }
 
     fn send(&mut self) -> anyhow::Result<()> {
-        if self.batch.is_empty() && self.batch.episodes.is_empty() {
+        if self.writer.is_empty() {
             return Ok(());
         }
-        let fresh = TransitionBatch::with_capacity(self.batch.obs_dim, self.batch_size);
-        let full = std::mem::replace(&mut self.batch, fresh);
+        let full = EncodedBatch::new(&self.writer.take());
         self.opened = None;
         let n = full.len() as u64;
         self.tx
@@ -67,9 +69,13 @@ impl BatchingAdder {
 }
 
 impl Adder for BatchingAdder {
+    fn add_first(&mut self, env: usize, obs: &[f32]) -> anyhow::Result<()> {
+        self.writer.add_first(env, obs)
+    }
+
     fn add(
         &mut self,
-        obs: &[f32],
+        env: usize,
         action: [f32; ACTION_DIM],
         reward: f32,
         next_obs: &[f32],
@@ -77,7 +83,7 @@ impl Adder for BatchingAdder {
         truncated: bool,
         policy_version: u64,
     ) -> anyhow::Result<()> {
-        self.batch.push(obs, action, reward, next_obs, terminated, truncated, policy_version);
+        self.writer.add(env, action, reward, next_obs, terminated, truncated, policy_version)?;
         if self.due() {
             self.send()?;
         }
@@ -85,7 +91,7 @@ impl Adder for BatchingAdder {
     }
 
     fn add_episode(&mut self, stats: EpisodeStats) -> anyhow::Result<()> {
-        self.batch.episodes.push(stats);
+        self.writer.add_episode(stats);
         self.opened.get_or_insert_with(Instant::now);
         Ok(())
     }
@@ -102,7 +108,7 @@ mod tests {
     fn add(adder: &mut BatchingAdder, n: usize) {
         let obs = vec![0.5; 4];
         for _ in 0..n {
-            adder.add(&obs, [0.1, 0.2], 1.0, &obs, false, false, 1).unwrap();
+            adder.add(0, [0.1, 0.2], 1.0, &obs, false, false, 1).unwrap();
         }
     }
 
@@ -110,6 +116,7 @@ mod tests {
     fn full_batches_go_at_once_and_a_part_batch_goes_when_its_first_transition_is_old() {
         let (tx, mut rx) = mpsc::channel(16);
         let mut adder = BatchingAdder::new(4, 8, Duration::from_millis(200), tx);
+        adder.add_first(0, &[0.5; 4]).unwrap();
         add(&mut adder, 8 + 3);
         assert_eq!(rx.try_recv().unwrap().len(), 8);
         assert!(rx.try_recv().is_err(), "3 fresh transitions wait for more");

@@ -1,5 +1,6 @@
 //! The environment loop (Acme's EnvironmentLoop): step K environments with one batched policy
-//! forward pass, hand every transition to an [`Adder`], report finished episodes, follow the
+//! forward pass, hand every observation once to an [`Adder`] (an episode's first with
+//! `add_first`, each step's result with `add`), report finished episodes, follow the
 //! learner's variables (weights, stage, warm-up, stop), and log selected episodes to MCAP.
 //!
 //! It knows nothing about the network: the actor process plugs in the gRPC adder and variable
@@ -128,6 +129,9 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
             this.episodes.push(info);
         }
         this.envs.write_obs(&mut this.obs);
+        for i in 0..n {
+            this.adder.add_first(i, &this.obs[i * d..(i + 1) * d])?;
+        }
         Ok(this)
     }
 
@@ -249,7 +253,7 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
             let terminated = out.done.is_some_and(|o| o.is_terminal());
             let truncated = out.done == Some(Outcome::Timeout);
             self.adder.add(
-                &self.obs[i * d..(i + 1) * d],
+                i,
                 self.actions[i],
                 out.reward,
                 &self.next_obs[i * d..(i + 1) * d],
@@ -328,6 +332,7 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
                 self.envs.envs_mut()[i].reset();
                 self.episodes[i] = self.new_episode_in(i, warmup, stage)?;
                 self.envs.envs()[i].write_obs(&mut self.next_obs[i * d..(i + 1) * d]);
+                self.adder.add_first(i, &self.next_obs[i * d..(i + 1) * d])?;
             }
         }
         std::mem::swap(&mut self.obs, &mut self.next_obs);
@@ -373,281 +378,4 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use dvnav_link::core::{TransitionBatch, Variables};
-    use dvnav_nav::nets::{Actor, init_seeded, varmap_to_safetensors};
-
-    /// Collects everything in memory.
-    #[derive(Default)]
-    struct VecAdder {
-        batch: TransitionBatch,
-    }
-
-    impl Adder for VecAdder {
-        fn add(
-            &mut self,
-            obs: &[f32],
-            action: [f32; ACTION_DIM],
-            reward: f32,
-            next_obs: &[f32],
-            terminated: bool,
-            truncated: bool,
-            policy_version: u64,
-        ) -> anyhow::Result<()> {
-            self.batch.obs_dim = obs.len();
-            self.batch.push(obs, action, reward, next_obs, terminated, truncated, policy_version);
-            Ok(())
-        }
-        fn add_episode(&mut self, stats: EpisodeStats) -> anyhow::Result<()> {
-            self.batch.episodes.push(stats);
-            Ok(())
-        }
-        fn flush(&mut self) -> anyhow::Result<()> {
-            Ok(())
-        }
-    }
-
-    struct Fixed(Arc<Variables>);
-
-    impl VariableSource for Fixed {
-        fn latest(&self) -> Option<Arc<Variables>> {
-            Some(self.0.clone())
-        }
-    }
-
-    fn policy_bytes(cfg: &Config) -> Vec<u8> {
-        let vm = candle_nn::VarMap::new();
-        let vb = candle_nn::VarBuilder::from_varmap(&vm, candle_core::DType::F32, &Device::Cpu);
-        Actor::new(vb, &cfg.network, cfg.obs_layout()).unwrap();
-        init_seeded(&vm, 5).unwrap();
-        varmap_to_safetensors(&vm).unwrap()
-    }
-
-    fn run(warmup: bool, steps: usize, seed: u64) -> (TransitionBatch, LoopCounters) {
-        run_at(warmup, steps, seed, 0, 0.0)
-    }
-
-    fn run_at(
-        warmup: bool,
-        steps: usize,
-        seed: u64,
-        stage: u32,
-        earlier_share: f64,
-    ) -> (TransitionBatch, LoopCounters) {
-        let mut cfg = Config::default();
-        cfg.actor.envs = 3;
-        cfg.env.max_steps = 60;
-        cfg.curriculum.earlier_share = earlier_share;
-        let vars = Variables {
-            version: 3,
-            policy: Arc::new(policy_bytes(&cfg)),
-            stage,
-            room: cfg.curriculum.rooms[stage as usize].clone(),
-            warmup,
-            stop: false,
-        };
-        let mut el = EnvironmentLoop::new(
-            cfg,
-            "t".into(),
-            0,
-            seed,
-            VecAdder::default(),
-            Fixed(Arc::new(vars)),
-            None,
-        )
-        .unwrap();
-        let mut n = 0;
-        el.run(|_| {
-            n += 1;
-            n <= steps
-        })
-        .unwrap();
-        let (adder, counters) = el.finish().unwrap();
-        (adder.batch, counters)
-    }
-
-    /// The episode log's directory becomes unwritable mid-run: the loop goes on, the failures
-    /// are counted, and logging resumes in new files once the directory is back. As root no
-    /// permission bit stops a write, so the directory is replaced by a regular file: creating a
-    /// file "inside" it fails with ENOTDIR for root too.
-    #[test]
-    fn an_unwritable_log_directory_is_survived_and_retried() {
-        let mut cfg = Config::default();
-        cfg.actor.envs = 2;
-        cfg.env.max_steps = 20;
-        cfg.logging.every_nth_episode = 1;
-        cfg.logging.episodes_per_file = 1;
-        let tmp = tempfile::tempdir().unwrap();
-        let dir = tmp.path().join("mcap");
-        let meta = dvnav_eval::episode_log::LogMetadata::default();
-        let selector = EpisodeSelector::create(&dir, "t", meta, &cfg).unwrap().unwrap();
-        // Before the first episode begins: the directory is now a file.
-        std::fs::remove_dir_all(&dir).unwrap();
-        std::fs::write(&dir, b"not a directory").unwrap();
-        let vars = Variables {
-            version: 3,
-            policy: Arc::new(policy_bytes(&cfg)),
-            stage: 0,
-            room: cfg.curriculum.rooms[0].clone(),
-            warmup: true,
-            stop: false,
-        };
-        let mut el = EnvironmentLoop::new(
-            cfg,
-            "t".into(),
-            0,
-            1,
-            VecAdder::default(),
-            Fixed(Arc::new(vars)),
-            Some(selector),
-        )
-        .unwrap();
-        let mut n = 0;
-        el.run(|_| {
-            n += 1;
-            n <= 100
-        })
-        .unwrap();
-        let c = el.counters();
-        assert!(c.episodes >= 5, "{c:?}");
-        assert_eq!(c.logged_episodes, 0, "{c:?}");
-        assert!(c.log_write_failures >= 5, "every selected episode tried and failed: {c:?}");
-        let failures = c.log_write_failures;
-        // The directory is back: the next selected episodes are written again.
-        std::fs::remove_file(&dir).unwrap();
-        std::fs::create_dir(&dir).unwrap();
-        let mut n = 0;
-        el.run(|_| {
-            n += 1;
-            n <= 100
-        })
-        .unwrap();
-        let (adder, c) = el.finish().unwrap();
-        assert_eq!(c.log_write_failures, failures, "{c:?}");
-        assert!(c.logged_episodes >= 5, "{c:?}");
-        assert_eq!(adder.batch.len() as u64, c.env_steps);
-        let files = std::fs::read_dir(&dir).unwrap().count();
-        assert!(files >= 5, "{files} files");
-    }
-
-    #[test]
-    fn transitions_chain_and_episodes_are_reported() {
-        let (b, c) = run(false, 150, 11);
-        let d = b.obs_dim;
-        assert_eq!(b.len(), 450);
-        assert_eq!(c.env_steps, 450);
-        assert!(c.episodes > 0 && b.episodes.len() as u64 == c.episodes);
-        assert!(b.policy_versions.iter().all(|&v| v == 3));
-        // Per environment (transitions interleave env 0, 1, 2, 0, …), the next observation of a
-        // step is the observation of the following step unless the episode ended.
-        for i in 0..b.len() - 3 {
-            if b.terminated[i] || b.truncated[i] {
-                continue;
-            }
-            assert_eq!(
-                &b.next_observations[i * d..(i + 1) * d],
-                &b.observations[(i + 3) * d..(i + 4) * d],
-                "transition {i}"
-            );
-        }
-        // Timeouts are truncations, never terminations; episode lengths respect T_max.
-        assert!(b.episodes.iter().all(|e| e.steps <= 60));
-        let ends = b.terminated.iter().zip(&b.truncated).filter(|(t, u)| **t || **u).count();
-        assert_eq!(ends as u64, c.episodes);
-    }
-
-    #[test]
-    fn a_share_of_episodes_runs_in_earlier_rooms() {
-        // Stage 2 with half the episodes in earlier rooms: after the first episodes (which
-        // start in the assigned room), every stage up to 2 shows up, each in its own room.
-        let (b, _) = run_at(false, 600, 3, 2, 0.5);
-        let stages: std::collections::BTreeSet<u32> = b.episodes.iter().map(|e| e.stage).collect();
-        assert_eq!(stages.into_iter().collect::<Vec<_>>(), vec![0, 1, 2], "{}", b.episodes.len());
-        for e in &b.episodes {
-            assert_eq!(e.room, format!("env{}", e.stage));
-        }
-        // Without a share, everything after each environment's first episode (begun before
-        // the loop heard of stage 2) runs in the assigned room.
-        let (b, _) = run_at(false, 300, 3, 2, 0.0);
-        let mut seen = std::collections::HashSet::new();
-        let later: Vec<_> = b.episodes.iter().filter(|e| !seen.insert(e.env_index)).collect();
-        assert!(!later.is_empty());
-        assert!(later.iter().all(|e| e.stage == 2 && e.room == "env2"));
-    }
-
-    #[test]
-    fn radius_input_transitions_carry_each_episodes_drawn_radius() {
-        let mut cfg = Config::from_toml_str(include_str!("../../configs/sac_ri.toml")).unwrap();
-        cfg.actor.envs = 3;
-        cfg.env.max_steps = 40;
-        let vars = Variables {
-            version: 1,
-            policy: Arc::new(policy_bytes(&cfg)),
-            stage: 0,
-            room: "sac_ri".into(),
-            warmup: false,
-            stop: false,
-        };
-        let mut el = EnvironmentLoop::new(
-            cfg.clone(),
-            "t".into(),
-            0,
-            5,
-            VecAdder::default(),
-            Fixed(Arc::new(vars)),
-            None,
-        )
-        .unwrap();
-        let mut n = 0;
-        el.run(|_| {
-            n += 1;
-            n <= 200
-        })
-        .unwrap();
-        let (adder, _) = el.finish().unwrap();
-        let b = adder.batch;
-        let d = b.obs_dim;
-        assert_eq!(d, 545);
-        let radius = |obs: &[f32], i: usize| obs[i * d + 544];
-        let mut seen = std::collections::BTreeSet::new();
-        for i in 0..b.len() {
-            let r = radius(&b.observations, i);
-            assert!((0.2..=0.5).contains(&r), "{r}");
-            seen.insert(r.to_bits());
-            if !(b.terminated[i] || b.truncated[i]) {
-                assert_eq!(radius(&b.next_observations, i), r, "one radius per episode");
-            }
-        }
-        // A radius of its own for every episode (the finished ones and up to 3 still open).
-        let episodes = b.episodes.len();
-        assert!(episodes >= 10, "{episodes}");
-        assert!((episodes..=episodes + 3).contains(&seen.len()), "{} radii", seen.len());
-        // The learner's wire validation takes these observations at the config's length.
-        let msg = dvnav_link::wire::batch_to_proto(&b, 0, 0);
-        let back = dvnav_link::wire::batch_from_proto(msg.clone(), cfg.obs_dim()).unwrap();
-        assert_eq!(back.observations, b.observations);
-        assert!(dvnav_link::wire::batch_from_proto(msg, 544).is_err());
-    }
-
-    #[test]
-    fn warmup_episodes_use_the_pid_controller() {
-        let (b, c) = run(true, 40, 11);
-        assert!(b.policy_versions.iter().all(|&v| v == 0));
-        assert_eq!(c.episodes, c.warmup_episodes);
-        assert!(b.episodes.iter().all(|e| e.warmup));
-    }
-
-    #[test]
-    fn same_seed_gives_identical_transitions() {
-        let (a, _) = run(false, 80, 21);
-        let (b, _) = run(false, 80, 21);
-        let (c, _) = run(false, 80, 22);
-        let enc = |x: &TransitionBatch| {
-            use prost::Message;
-            dvnav_link::wire::batch_to_proto(x, 0, 0).encode_to_vec()
-        };
-        assert_eq!(enc(&a), enc(&b));
-        assert_ne!(enc(&a), enc(&c));
-    }
-}
+mod tests;

@@ -3,25 +3,28 @@
 //! away.
 //!
 //! Delivery: every batch gets a sequence number that keeps increasing over the actor's life and
-//! stays in the [`Outbox`] until the learner acknowledges it. After a reconnect the unacknowledged
-//! batches are sent again with their numbers; a learner that had already inserted one answers
+//! stays in the [`Outbox`] until the learner acknowledges it, as the bytes the adder encoded
+//! ([`EncodedBatch`]). After a reconnect the unacknowledged batches are sent again, the same
+//! bytes under their numbers; a learner that had already inserted one answers
 //! `duplicate` and does not insert it twice. While the learner is unreachable the actor stops
 //! taking batches from its adder, so the environment loop waits instead of buffering without
 //! limit, and retries with exponential backoff (100 ms doubling to 5 s) for as long as it takes.
 
 use dvnav_config::Config;
-use dvnav_link::core::{TransitionBatch, Variables};
-use dvnav_link::wire::batch_to_proto;
+use dvnav_link::core::Variables;
+use dvnav_link::wire::EncodedBatch;
 use dvnav_proto as pb;
 use dvnav_proto::MAX_MESSAGE_BYTES;
 use pb::learner_client::LearnerClient;
 use serde::Serialize;
 use std::collections::VecDeque;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};
+use tokio_stream::Stream;
 use tokio_stream::wrappers::ReceiverStream;
+use tokio_util::sync::CancellationToken;
+use tonic::codec::{BufferSettings, Codec, EncodeBuf, Encoder};
 use tonic::metadata::{Ascii, MetadataValue};
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Channel, ClientTlsConfig, Endpoint};
@@ -57,8 +60,113 @@ impl tonic::service::Interceptor for AuthInterceptor {
     }
 }
 
-/// The learner client type actors use.
-pub type Client = LearnerClient<InterceptedService<Channel, AuthInterceptor>>;
+/// The channel to the learner, with the token on every call.
+type Service = InterceptedService<Channel, AuthInterceptor>;
+
+/// The learner client actors use: the generated stub for registration, status and the
+/// variables stream (reached through `Deref`, so `client.register(..)` reads as on the stub),
+/// and the same channel for the transition stream, whose batches go out as they were encoded
+/// once ([`Client::transitions_encoded`]).
+#[derive(Clone)]
+pub struct Client {
+    stub: LearnerClient<Service>,
+    grpc: tonic::client::Grpc<Service>,
+}
+
+impl std::ops::Deref for Client {
+    type Target = LearnerClient<Service>;
+    fn deref(&self) -> &Self::Target {
+        &self.stub
+    }
+}
+
+impl std::ops::DerefMut for Client {
+    fn deref_mut(&mut self) -> &mut Self::Target {
+        &mut self.stub
+    }
+}
+
+impl Client {
+    /// A client over `channel` that presents `token`.
+    fn new(channel: Channel, token: Option<&str>) -> anyhow::Result<Self> {
+        let service = InterceptedService::new(channel, AuthInterceptor::new(token)?);
+        let stub = LearnerClient::new(service.clone())
+            .max_decoding_message_size(MAX_MESSAGE_BYTES)
+            .max_encoding_message_size(MAX_MESSAGE_BYTES);
+        let grpc = tonic::client::Grpc::new(service)
+            .max_decoding_message_size(MAX_MESSAGE_BYTES)
+            .max_encoding_message_size(MAX_MESSAGE_BYTES);
+        Ok(Self { stub, grpc })
+    }
+
+    /// The `Transitions` call, as the generated stub makes it, but with [`OutgoingCodec`]: each
+    /// batch's pre-encoded bytes are written as they are. The learner decodes the messages with
+    /// prost like any `TransitionBatch`.
+    pub async fn transitions_encoded(
+        &mut self,
+        batches: impl Stream<Item = Outgoing> + Send + 'static,
+    ) -> Result<tonic::Response<tonic::codec::Streaming<pb::BatchAck>>, tonic::Status> {
+        self.grpc
+            .ready()
+            .await
+            .map_err(|e| tonic::Status::unknown(format!("Service was not ready: {e}")))?;
+        let path =
+            tonic::codegen::http::uri::PathAndQuery::from_static("/dvnav.v1.Learner/Transitions");
+        let mut req = tonic::Request::new(batches);
+        req.extensions_mut().insert(tonic::GrpcMethod::new("dvnav.v1.Learner", "Transitions"));
+        self.grpc.streaming(req, path, OutgoingCodec).await
+    }
+}
+
+/// One batch as it goes out on a stream: its bytes ([`EncodedBatch`]) under this connection's
+/// actor id and the batch's sequence number.
+#[derive(Clone, Debug)]
+pub struct Outgoing {
+    /// The id this connection registered under.
+    pub actor_id: u32,
+    /// The batch's sequence number.
+    pub sequence: u64,
+    /// The batch, encoded once.
+    pub batch: EncodedBatch,
+}
+
+/// The client's codec of the `Transitions` stream: [`Outgoing`] batches out, written from their
+/// pre-encoded bytes; acknowledgements in, decoded by prost.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct OutgoingCodec;
+
+impl Codec for OutgoingCodec {
+    type Encode = Outgoing;
+    type Decode = pb::BatchAck;
+    type Encoder = OutgoingEncoder;
+    type Decoder = tonic_prost::ProstDecoder<pb::BatchAck>;
+
+    fn encoder(&mut self) -> Self::Encoder {
+        OutgoingEncoder
+    }
+
+    fn decoder(&mut self) -> Self::Decoder {
+        tonic_prost::ProstCodec::<pb::TransitionBatch, pb::BatchAck>::raw_decoder(
+            BufferSettings::default(),
+        )
+    }
+}
+
+/// Writes an [`Outgoing`] batch: its two header fields, then its bytes.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct OutgoingEncoder;
+
+impl Encoder for OutgoingEncoder {
+    type Item = Outgoing;
+    type Error = tonic::Status;
+
+    fn encode(&mut self, item: Outgoing, dst: &mut EncodeBuf<'_>) -> Result<(), Self::Error> {
+        // The two header fields take at most 2 + 5 + 1 + 10 bytes.
+        dst.reserve(item.batch.body_len() + 18);
+        item.batch.write(item.actor_id, item.sequence, dst);
+        Ok(())
+    }
+}
 
 /// The learner's endpoint; over TLS with `tls`, or for an `https://` URL (see
 /// [`dvnav_tls::endpoint`]).
@@ -66,7 +174,7 @@ fn endpoint(url: &str, tls: Option<&ClientTlsConfig>) -> anyhow::Result<Endpoint
     Ok(dvnav_tls::endpoint(url, tls)
         .map_err(|e| anyhow::anyhow!("learner address {url:?}: {e:#}"))?
         .connect_timeout(Duration::from_secs(5))
-        // Windows sized for ~0.5 MB batches and ~1 MB weights, as on the learner's side.
+        // Windows sized for ~0.3 MB batches and ~1 MB weights, as on the learner's side.
         .initial_stream_window_size(4 << 20)
         .initial_connection_window_size(16 << 20)
         .http2_keep_alive_interval(Duration::from_secs(5))
@@ -75,9 +183,7 @@ fn endpoint(url: &str, tls: Option<&ClientTlsConfig>) -> anyhow::Result<Endpoint
 }
 
 fn make_client(channel: Channel, token: Option<&str>) -> anyhow::Result<Client> {
-    Ok(LearnerClient::with_interceptor(channel, AuthInterceptor::new(token)?)
-        .max_decoding_message_size(MAX_MESSAGE_BYTES)
-        .max_encoding_message_size(MAX_MESSAGE_BYTES))
+    Client::new(channel, token)
 }
 
 /// Connects to the learner (over TLS with `tls`), retrying with exponential backoff until
@@ -162,7 +268,7 @@ pub fn variables_from_proto(u: pb::VariablesUpdate) -> Variables {
     let (stage, room) = u.assignment.map(|a| (a.stage, a.room)).unwrap_or_default();
     Variables {
         version: u.version,
-        policy: Arc::new(u.safetensors),
+        policy: Arc::new(u.safetensors.into()),
         stage,
         room,
         warmup: u.warmup,
@@ -191,10 +297,11 @@ pub async fn follow_variables(
     }
 }
 
-/// Batches handed to the learner and not yet acknowledged, with their sequence numbers.
+/// Batches handed to the learner and not yet acknowledged, with their sequence numbers, kept
+/// encoded.
 #[derive(Debug)]
 pub struct Outbox {
-    pending: VecDeque<(u64, TransitionBatch)>,
+    pending: VecDeque<(u64, EncodedBatch)>,
     next_sequence: u64,
 }
 
@@ -205,7 +312,7 @@ impl Outbox {
     }
 
     /// Keeps `batch` until acknowledged; returns its sequence number.
-    pub fn push(&mut self, batch: TransitionBatch) -> u64 {
+    pub fn push(&mut self, batch: EncodedBatch) -> u64 {
         let seq = self.next_sequence;
         self.next_sequence += 1;
         self.pending.push_back((seq, batch));
@@ -234,9 +341,12 @@ impl Outbox {
         self.pending.iter().map(|(_, b)| b.len() as u64).sum()
     }
 
-    /// Wire form of every pending batch, for a resend under `actor_id`.
-    fn resend(&self, actor_id: u32) -> Vec<pb::TransitionBatch> {
-        self.pending.iter().map(|(s, b)| batch_to_proto(b, actor_id, *s)).collect()
+    /// Every pending batch, for a resend under `actor_id`: the same bytes, shared.
+    fn resend(&self, actor_id: u32) -> Vec<Outgoing> {
+        self.pending
+            .iter()
+            .map(|(s, b)| Outgoing { actor_id, sequence: *s, batch: b.clone() })
+            .collect()
     }
 }
 
@@ -276,12 +386,15 @@ impl Session<'_> {
         &self,
         client: &mut Client,
         actor_id: u32,
-        batches: &mut mpsc::Receiver<TransitionBatch>,
+        batches: &mut mpsc::Receiver<EncodedBatch>,
     ) -> Result<(), String> {
-        let (out_tx, out_rx) = mpsc::channel::<pb::TransitionBatch>(2);
+        let (out_tx, out_rx) = mpsc::channel::<Outgoing>(2);
         let status = |s: tonic::Status| format!("{:?}: {}", s.code(), s.message());
-        let mut acks =
-            client.transitions(ReceiverStream::new(out_rx)).await.map_err(status)?.into_inner();
+        let mut acks = client
+            .transitions_encoded(ReceiverStream::new(out_rx))
+            .await
+            .map_err(status)?
+            .into_inner();
         let resend = self.outbox.lock().expect("link lock").resend(actor_id);
         self.counters.lock().expect("link lock").batches_resent += resend.len() as u64;
         let send = async move {
@@ -294,12 +407,9 @@ impl Session<'_> {
                     break;
                 };
                 let n = b.len() as u64;
-                let msg = {
-                    // In the outbox before the first send: if the stream breaks, it is resent.
-                    let mut ob = self.outbox.lock().expect("link lock");
-                    let seq = ob.push(b);
-                    batch_to_proto(&ob.pending.back().expect("just pushed").1, actor_id, seq)
-                };
+                // In the outbox before the first send: if the stream breaks, it is resent.
+                let sequence = self.outbox.lock().expect("link lock").push(b.clone());
+                let msg = Outgoing { actor_id, sequence, batch: b };
                 {
                     let mut c = self.counters.lock().expect("link lock");
                     c.batches_sent += 1;
@@ -357,9 +467,9 @@ pub async fn run_link(
     opts: LinkOptions,
     mut client: Client,
     first: Registered,
-    mut batches: mpsc::Receiver<TransitionBatch>,
+    mut batches: mpsc::Receiver<EncodedBatch>,
     variables: watch::Sender<Option<Arc<Variables>>>,
-    stop: Arc<AtomicBool>,
+    stop: CancellationToken,
 ) -> LinkCounters {
     let outbox = Mutex::new(Outbox::new(first.next_sequence));
     let counters = Mutex::new(LinkCounters::default());
@@ -386,8 +496,7 @@ pub async fn run_link(
             // A learner that already said stop is finishing its run and will not come back;
             // neither will one this actor was told locally to leave.
             let learner_said_stop = variables.borrow().as_ref().is_some_and(|v| v.stop);
-            if (stop.load(Ordering::Relaxed) || learner_said_stop)
-                && lost_at.elapsed() > GIVE_UP_AFTER_STOP
+            if (stop.is_cancelled() || learner_said_stop) && lost_at.elapsed() > GIVE_UP_AFTER_STOP
             {
                 break None;
             }
@@ -429,13 +538,22 @@ pub async fn run_link(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use dvnav_link::core::TransitionBatch;
+    use prost::Message;
 
-    fn batch(n: usize) -> TransitionBatch {
+    fn batch(n: usize) -> EncodedBatch {
         let mut b = TransitionBatch::with_capacity(1, n);
         for _ in 0..n {
             b.push(&[0.0], [0.0, 0.0], 0.0, &[0.0], false, false, 1);
         }
-        b
+        EncodedBatch::new(&b)
+    }
+
+    /// The message the learner decodes from an outgoing batch.
+    fn on_the_wire(o: &Outgoing) -> pb::TransitionBatch {
+        let mut buf = Vec::new();
+        o.batch.write(o.actor_id, o.sequence, &mut buf);
+        pb::TransitionBatch::decode(buf.as_slice()).unwrap()
     }
 
     #[test]
@@ -447,7 +565,7 @@ mod tests {
         assert_eq!(o.pending_transitions(), 9);
         o.ack(8);
         assert_eq!(o.len(), 1);
-        let resend = o.resend(3);
+        let resend: Vec<_> = o.resend(3).iter().map(on_the_wire).collect();
         assert_eq!((resend[0].sequence, resend[0].actor_id, resend[0].count), (9, 3, 4));
         o.ack(9);
         assert!(o.is_empty());

@@ -11,10 +11,9 @@ use dvnav_eval::episode_log::LogMetadata;
 use serde::Serialize;
 use std::future::Future;
 use std::path::PathBuf;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
+use tokio_util::sync::CancellationToken;
 
 /// Options of an actor process.
 #[derive(Clone, Debug)]
@@ -79,12 +78,12 @@ pub async fn run(
     let actor_id = reg.actor_id;
     tracing::info!(name = %opts.name, actor_id, run = %reg.run_id, "registered with the learner");
 
-    let stop = Arc::new(AtomicBool::new(false));
+    let stop = CancellationToken::new();
     {
         let stop = stop.clone();
         tokio::spawn(async move {
             shutdown.await;
-            stop.store(true, Ordering::Relaxed);
+            stop.cancel();
         });
     }
     let (mut variables, var_tx) = VariableClient::new();
@@ -148,9 +147,9 @@ pub async fn run(
                     );
                     last_log = Instant::now();
                 }
-                !loop_stop.load(Ordering::Relaxed)
+                !loop_stop.is_cancelled()
             });
-            let interrupted = loop_stop.load(Ordering::Relaxed);
+            let interrupted = loop_stop.is_cancelled();
             let reason = match (&ran, interrupted) {
                 (Ok(()), false) => "learner said stop".to_string(),
                 (Ok(()), true) => "interrupted".to_string(),

@@ -35,6 +35,7 @@ pub mod csv_format;
 pub mod curriculum;
 pub mod device;
 pub mod evaluator;
+pub mod json_f64;
 pub mod metrics;
 pub mod process_memory;
 pub mod rate_limiter;

@@ -46,13 +46,13 @@ pub struct LearnerSummary {
     #[serde(flatten)]
     pub status: StatusSnapshot,
     /// Wall time of the learner (s).
-    #[serde(deserialize_with = "crate::state::f64_or_nan")]
+    #[serde(deserialize_with = "crate::json_f64::f64_or_nan")]
     pub wall_time_s: f64,
     /// Transitions received per second of wall time.
-    #[serde(deserialize_with = "crate::state::f64_or_nan")]
+    #[serde(deserialize_with = "crate::json_f64::f64_or_nan")]
     pub env_steps_per_s: f64,
     /// Updates per second of wall time.
-    #[serde(deserialize_with = "crate::state::f64_or_nan")]
+    #[serde(deserialize_with = "crate::json_f64::f64_or_nan")]
     pub updates_per_s: f64,
     /// Directory of the final checkpoint.
     pub final_checkpoint: Option<PathBuf>,

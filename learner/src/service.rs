@@ -83,11 +83,11 @@ pub fn transport_server(
     }
 }
 
-/// Wire form of the variables an actor receives.
+/// Wire form of the variables an actor receives; the weights are shared, not copied.
 pub fn variables_to_proto(v: &Variables) -> pb::VariablesUpdate {
     pb::VariablesUpdate {
         version: v.version,
-        safetensors: v.policy.as_ref().clone(),
+        safetensors: dvnav_link::wire::policy_bytes(&v.policy),
         assignment: Some(pb::StageAssignment { stage: v.stage, room: v.room.clone() }),
         warmup: v.warmup,
         stop: v.stop,

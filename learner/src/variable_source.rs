@@ -1,6 +1,7 @@
 //! Publishes versioned policy weights and stage assignments to every subscriber (Acme's
 //! VariableSource). Backed by a `watch` channel: a slow actor skips straight to the newest
-//! version instead of queueing old ones.
+//! version instead of queueing old ones. Each version's safetensors are serialized once and
+//! shared by every actor's stream (`dvnav_link::wire::policy_bytes`), never copied per actor.
 
 use dvnav_link::core::{self, Variables};
 use std::sync::Arc;

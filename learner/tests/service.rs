@@ -133,7 +133,7 @@ async fn variables_stream_delivers_weights_and_ends_at_shutdown() {
     let id = c.register(register("a", PROTOCOL_VERSION)).await.unwrap().into_inner().actor_id;
     let mut vars = c.variables(VariablesRequest { actor_id: id }).await.unwrap().into_inner();
     let first = vars.message().await.unwrap().unwrap();
-    assert_eq!((first.version, first.safetensors.as_slice()), (1, &[1u8, 2, 3][..]));
+    assert_eq!((first.version, &first.safetensors[..]), (1, &[1u8, 2, 3][..]));
     s.state.variables().publish_weights(vec![9; 5_000_000]);
     let second = vars.message().await.unwrap().unwrap();
     assert_eq!(
@@ -170,7 +170,10 @@ async fn random_batches_are_refused_and_the_learner_keeps_serving() {
             1 => m.observations.truncate(rng.random_range(0..2 * d)),
             2 => m.actions[rng.random_range(0..4)] = rng.random_range(-5.0..5.0),
             3 => m.rewards[rng.random_range(0..2)] = f32::NEG_INFINITY,
-            4 => m.next_observations[rng.random_range(0..2 * d)] = f32::NAN,
+            4 => {
+                let k = rng.random_range(0..m.next_observations.len());
+                m.next_observations[k] = f32::NAN
+            }
             _ => m.terminated = vec![true; rng.random_range(0..5)],
         }
         let claimed = m.count as u64;
@@ -269,8 +272,9 @@ async fn an_oversized_message_is_refused_and_the_learner_keeps_serving() {
     let s = Server { state, url, stop: Some(tx), task };
     let mut c = s.client().await;
     let id = c.register(register("a", PROTOCOL_VERSION)).await.unwrap().into_inner().actor_id;
-    // Just over 1 MiB: n transitions of 2 × obs_dim four-byte floats.
-    let n = 1 + (1 << 20) / (8 * cfg.obs_dim());
+    // Just over 1 MiB: n transitions of one obs_dim-long observation of four-byte floats each
+    // (the next observation of one is the observation of the following one).
+    let n = 1 + (1 << 20) / (4 * cfg.obs_dim());
     let huge = dvnav_link::wire::batch_to_proto(&batch(&cfg, n), id, 0);
     let mut acks = c.transitions(tokio_stream::iter(vec![huge])).await.unwrap().into_inner();
     let err = acks.message().await.unwrap_err();

@@ -9,10 +9,11 @@
 //! decodes our messages without our code.
 
 /// Version of the actor ⇄ learner protocol; a learner refuses actors that speak another one.
-pub const PROTOCOL_VERSION: u32 = 1;
+/// 2: each observation travels once (`TransitionBatch.next_obs_index`).
+pub const PROTOCOL_VERSION: u32 = 2;
 
 /// Largest gRPC message either side of the learner service accepts or sends. Weights of the
-/// default policy are about 1 MB and a default batch about 0.6 MB, over gRPC's 4 MiB default
+/// default policy are about 1 MB and a default batch about 0.3 MB, over gRPC's 4 MiB default
 /// only for much larger networks or batches; set deliberately so they never fail at run time.
 pub const MAX_MESSAGE_BYTES: usize = 256 * 1024 * 1024;
 

@@ -350,10 +350,15 @@ async fn bench_transport(transitions: usize, batch: usize) -> anyhow::Result<ser
         b.push(&obs, [0.1, -0.2], 0.01, &obs, false, false, 1);
     }
     let n_batches = transitions.div_ceil(batch);
-    let msgs: Vec<_> =
-        (0..n_batches).map(|s| dvnav_link::wire::batch_to_proto(&b, id, s as u64)).collect();
     let t = Instant::now();
-    let mut acks = client.transitions(tokio_stream::iter(msgs)).await?.into_inner();
+    // As an actor sends: each batch encoded once (timed, as the encoding always was), its bytes
+    // written as they are.
+    let msgs = (0..n_batches).map(move |s| dvnav_actor::learner_link::Outgoing {
+        actor_id: id,
+        sequence: s as u64,
+        batch: dvnav_link::wire::EncodedBatch::new(&b),
+    });
+    let mut acks = client.transitions_encoded(tokio_stream::iter(msgs)).await?.into_inner();
     let mut accepted = 0u64;
     while let Some(a) = acks.message().await? {
         accepted += a.accepted as u64;

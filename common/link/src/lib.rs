@@ -2,11 +2,13 @@
 //!
 //! What connects an actor to the learner, as plain types testable without a network:
 //!
-//! - [`core`]: Acme-style seams: [`core::TransitionBatch`], [`core::Adder`],
-//!   [`core::Variables`] and [`core::VariableSource`], so an environment loop runs against an
-//!   in-process learner in tests and against the gRPC one in production.
+//! - [`core`]: Acme-style seams: [`core::TransitionBatch`] (each observation once, paired by
+//!   position), [`core::Adder`] (`add_first`, then `add` per step) with [`core::BatchWriter`]
+//!   that pairs for it, [`core::Variables`] and [`core::VariableSource`], so an environment loop
+//!   runs against an in-process learner in tests and against the gRPC one in production.
 //! - [`wire`]: every conversion between these domain types and the wire types of
-//!   `dvnav-proto`, validating untrusted input in one place (each error names its field).
+//!   `dvnav-proto`, validating untrusted input in one place (each error names its field), and
+//!   [`wire::EncodedBatch`], a batch encoded once and sent as such however often.
 //!
 //! It sits on [`dvnav_sim`] (observation layout, [`dvnav_sim::Outcome`]) and `dvnav-proto`
 //! only; the transport's security (TLS, tokens) is `dvnav-tls`.

@@ -1,8 +1,13 @@
 //! The replay buffer in a checkpoint (`replay.safetensors`, written when
-//! `replay.save_in_checkpoint` is on): the stored observations oldest first, the transitions
-//! oldest first with the observations they refer to, and the unclaimed `next_obs` awaiting
-//! their successor. A restored buffer samples the same transitions with the same generator and
-//! pairs and evicts the next arrivals as the saved one would have.
+//! `replay.save_in_checkpoint` is on): the stored observations oldest first, and the
+//! transitions oldest first with the observations they refer to. A restored buffer samples the
+//! same transitions with the same generator and stores and evicts the next arrivals as the saved
+//! one would have.
+//!
+//! The format is unchanged since the buffer paired observations by hash: its `pending` array
+//! (the unclaimed `next_obs` awaiting their successor) is now written empty, and read (and
+//! checked) but not used, since batches pair their own observations by position. Files of
+//! either kind load.
 
 use super::{ObsCodec, ReplayBuffer};
 use dvnav_sim::obs::ACTION_DIM;
@@ -35,12 +40,8 @@ impl ReplayBuffer {
             .collect();
         let rewards: Vec<f32> = order.iter().map(|&j| self.rewards[j]).collect();
         let terminated: Vec<u8> = order.iter().map(|&j| self.terminated[j] as u8).collect();
-        let pending: Vec<u64> = self
-            .pending_order
-            .iter()
-            .filter(|(h, id)| self.pending.get(h) == Some(id) && *id >= self.oldest_obs)
-            .map(|&(_, id)| rel(id))
-            .collect();
+        // Kept for the format (see the module docs).
+        let pending: Vec<u64> = Vec::new();
         let n = self.len;
         let tensors = [
             ("actions", Slot::new(Dtype::F32, vec![n, ACTION_DIM], le(&actions))),
@@ -117,9 +118,6 @@ impl ReplayBuffer {
         for i in 0..n {
             let a = [actions[2 * i], actions[2 * i + 1]];
             buffer.push(obs_id[i], next_id[i], a, rewards[i], terminated[i] != 0);
-        }
-        for &id in &pending {
-            buffer.remember(id);
         }
         Ok(buffer)
     }

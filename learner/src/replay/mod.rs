@@ -5,10 +5,9 @@ mod codec;
 mod file;
 
 pub use codec::ObsCodec;
-use dvnav_link::core::TransitionBatch;
+use dvnav_link::core::{NextObs, TransitionBatch};
 use dvnav_sim::obs::ACTION_DIM;
 use rand::Rng;
-use std::collections::{HashMap, VecDeque};
 
 /// A sampled minibatch, laid out for tensors. Named fields rather than a tuple, and
 /// `terminated` kept apart from truncation: only termination masks the bootstrap.
@@ -34,16 +33,22 @@ pub struct Batch {
 /// Fixed-capacity FIFO of transitions, each observation stored once.
 ///
 /// Layout: an *observation store* (a ring of compactly encoded observations, see
-/// [`ObsCodec`]) and a *transition ring* that refers to observations by id. A transition's
-/// `next_obs` is the next transition's `obs` unless the episode ended, so an arriving
-/// transition whose `obs` equals a stored, still unclaimed `next_obs` reuses it: about one
-/// stored observation per transition instead of two, and ranges in `u16`, so the paper's 5e5
-/// transitions take ~0.6 GB instead of ~2.2 GB (`dvnav bench replay --json`).
+/// [`ObsCodec`]) and a *transition ring* that refers to observations by id. A batch holds each
+/// of its observations once and pairs its transitions by position
+/// ([`dvnav_link::core::TransitionBatch`]); [`ReplayBuffer::insert`] stores each of them once and
+/// maps the batch's positions to stored ids: about one stored observation per transition
+/// instead of two, plus one per episode end and one per environment and batch (the batch
+/// boundary), and ranges in `u16`.
 ///
-/// The observation store holds `obs_capacity` observations (a little more than one per
-/// transition, to absorb episode starts). If a stream pairs observations worse than that, the
-/// oldest transitions are dropped earlier to free theirs: the buffer then holds fewer than
-/// `capacity` transitions, never a transition with a missing observation.
+/// Ids are handed out in transition order (each transition's observation, then its next one
+/// unless that is a later transition's), so observation ids increase along the ring and each
+/// transition's next id is above its own: the oldest stored observation is always the oldest
+/// transition's, and eviction only ever drops transitions from the oldest end.
+///
+/// The observation store holds `obs_capacity` observations (an eighth more than one per
+/// transition, to absorb episode ends and batch boundaries). If a stream pairs observations
+/// worse than that, the oldest transitions are dropped earlier to free theirs: the buffer then
+/// holds fewer than `capacity` transitions, never a transition with a missing observation.
 #[derive(Debug)]
 pub struct ReplayBuffer {
     codec: ObsCodec,
@@ -55,10 +60,6 @@ pub struct ReplayBuffer {
     extras: Vec<f32>,
     next_obs_id: u64,
     oldest_obs: u64,
-    /// Stored `next_obs` not yet claimed by a following transition: hash → id. Bounded by
-    /// [`PENDING_MAX`], oldest forgotten first.
-    pending: HashMap<u64, u64>,
-    pending_order: VecDeque<(u64, u64)>,
     /// Transition ring: logical index `i` (0 = oldest) is at `(head + i) % capacity`.
     obs_id: Vec<u64>,
     next_id: Vec<u64>,
@@ -69,11 +70,9 @@ pub struct ReplayBuffer {
     len: usize,
     /// Encoding scratch, kept to avoid two allocations per observation.
     scratch: (Vec<u16>, Vec<f32>),
+    /// Insertion scratch: the id each row of a batch's `observations` gets.
+    row_ids: Vec<u64>,
 }
-
-/// Unclaimed `next_obs` remembered for pairing: far more than the environments of all actors
-/// together, whose next steps arrive within a batch or two.
-pub const PENDING_MAX: usize = 1 << 16;
 
 impl ReplayBuffer {
     /// An empty buffer for `capacity` transitions of observations laid out as `codec` says.
@@ -88,8 +87,6 @@ impl ReplayBuffer {
             extras: Vec::new(),
             next_obs_id: 0,
             oldest_obs: 0,
-            pending: HashMap::new(),
-            pending_order: VecDeque::new(),
             obs_id: Vec::new(),
             next_id: Vec::new(),
             actions: Vec::new(),
@@ -98,6 +95,7 @@ impl ReplayBuffer {
             head: 0,
             len: 0,
             scratch: (Vec::new(), Vec::new()),
+            row_ids: Vec::new(),
         }
     }
 
@@ -131,40 +129,40 @@ impl ReplayBuffer {
             + self.terminated.capacity()
     }
 
-    /// Appends every transition of a validated batch, dropping the oldest when full.
+    /// Appends every transition of a validated batch, dropping the oldest when full. Each
+    /// observation of the batch is stored once, and its positions in the batch become ids.
     pub fn insert(&mut self, batch: &TransitionBatch) {
         assert_eq!(batch.obs_dim, self.codec.obs_dim, "batch observation size");
-        let d = self.codec.obs_dim;
-        for i in 0..batch.len() {
-            let o = &batch.observations[i * d..(i + 1) * d];
-            let no = &batch.next_observations[i * d..(i + 1) * d];
-            let obs = self.claim_or_store(o);
-            let next = self.store(no);
-            // An episode that ended is not continued by the next transition of its stream.
-            if !(batch.terminated[i] || batch.truncated[i]) {
-                self.remember(next);
-            }
+        let n = batch.len();
+        // A later row is the next observation of a continuing step; anything else (a row of
+        // `next_observations`, or a pairing the wire would refuse) is stored with its
+        // transition.
+        let later = |i: usize| match batch.next[i] {
+            NextObs::Step(j) => (i + 1..n).contains(&(j as usize)),
+            NextObs::Last(_) => false,
+        };
+        // The ids the rows get when stored in transition order: transition i stores its row,
+        // then its next observation unless that is a later row.
+        let mut row_ids = std::mem::take(&mut self.row_ids);
+        row_ids.clear();
+        let mut id = self.next_obs_id;
+        for i in 0..n {
+            row_ids.push(id);
+            id += if later(i) { 1 } else { 2 };
+        }
+        for i in 0..n {
+            let obs = self.store(batch.obs(i));
+            debug_assert_eq!(obs, row_ids[i]);
+            // A later row's id is handed out before it is stored, further on in this loop.
+            let next = match batch.next[i] {
+                NextObs::Step(j) if later(i) => row_ids[j as usize],
+                NextObs::Step(j) => self.store(batch.obs(j as usize)),
+                NextObs::Last(k) => self.store(batch.last_obs(k as usize)),
+            };
             let a = [batch.actions[i * ACTION_DIM], batch.actions[i * ACTION_DIM + 1]];
             self.push(obs, next, a, batch.rewards[i], batch.terminated[i]);
         }
-    }
-
-    /// The id of a stored, unclaimed `next_obs` equal to `obs`, or of a fresh copy.
-    fn claim_or_store(&mut self, obs: &[f32]) -> u64 {
-        let (mut scan, mut extra) = std::mem::take(&mut self.scratch);
-        scan.clear();
-        extra.clear();
-        self.codec.encode(obs, &mut scan, &mut extra);
-        let h = ObsCodec::hash(&scan, &extra);
-        let id = match self.pending.get(&h) {
-            Some(&id) if id >= self.oldest_obs && self.stored(id) == (&scan[..], &extra[..]) => {
-                self.pending.remove(&h);
-                id
-            }
-            _ => self.store_encoded(&scan, &extra),
-        };
-        self.scratch = (scan, extra);
-        id
+        self.row_ids = row_ids;
     }
 
     fn store(&mut self, obs: &[f32]) -> u64 {
@@ -206,19 +204,6 @@ impl ReplayBuffer {
         self.oldest_obs += 1;
         while self.len > 0 && self.obs_id[self.head] < self.oldest_obs {
             self.pop_oldest();
-        }
-    }
-
-    fn remember(&mut self, id: u64) {
-        let (s, e) = self.stored(id);
-        let h = ObsCodec::hash(s, e);
-        self.pending.insert(h, id);
-        self.pending_order.push_back((h, id));
-        while self.pending_order.len() > PENDING_MAX {
-            let (h, id) = self.pending_order.pop_front().expect("non-empty");
-            if self.pending.get(&h) == Some(&id) {
-                self.pending.remove(&h);
-            }
         }
     }
 
@@ -318,7 +303,7 @@ mod tests {
         let path = dir.path().join("replay.safetensors");
         let codec = ObsCodec::new(3, 2, 100.0);
         let mut r = ReplayBuffer::new(codec, 8);
-        r.insert(&stream(0, 11)); // wrapped, with an unclaimed next_obs pending
+        r.insert(&stream(0, 11)); // wrapped
         r.save(&path).unwrap();
         let mut loaded = ReplayBuffer::load(&path, codec, 8).unwrap();
         assert!(ReplayBuffer::load(&path, codec, 9).is_err(), "another capacity is refused");
@@ -377,7 +362,7 @@ mod tests {
         for i in 0..50 {
             for s in [&a, &b] {
                 let o = &s.observations[i * 3..i * 3 + 3];
-                let no = &s.next_observations[i * 3..i * 3 + 3];
+                let no = s.next_obs(i);
                 let act = [s.actions[2 * i], s.actions[2 * i + 1]];
                 both.push(o, act, s.rewards[i], no, s.terminated[i], s.truncated[i], 1);
             }
@@ -407,6 +392,44 @@ mod tests {
             assert_eq!((o[0], no[0]), (x, -x));
         }
         assert_eq!(r.get(r.len() - 1).2, 9999.0);
+    }
+
+    /// Many environments interleaved (a step's next observation is 300 rows later), episode
+    /// ends, batch boundaries, and more observations per batch than the store holds: every
+    /// transition kept is whole, and the newest `capacity` are kept.
+    #[test]
+    fn interleaved_batches_pair_by_position_and_keep_every_transition_whole() {
+        use dvnav_link::core::BatchWriter;
+        let mut r = ReplayBuffer::new(ObsCodec::plain(3), 100);
+        let mut w = BatchWriter::new(3, 3000);
+        // Environment e at time t observes [e, t, 0]; its episodes end every 4 steps.
+        let envs = 300;
+        for e in 0..envs {
+            w.add_first(e, &[e as f32, 0.0, 0.0]).unwrap();
+        }
+        for round in 0..2 {
+            for t in 0..10 {
+                for e in 0..envs {
+                    let t = (round * 10 + t) as f32;
+                    let end = t as usize % 4 == 3;
+                    w.add(e, [0.0, 0.0], t, &[e as f32, t + 1.0, 0.0], end, false, 1).unwrap();
+                    if end {
+                        w.add_first(e, &[e as f32, t + 1.0, 0.0]).unwrap();
+                    }
+                }
+            }
+            let b = w.take();
+            assert!(b.stored_observations() > r.obs_capacity, "{}", b.stored_observations());
+            r.insert(&b);
+        }
+        assert_eq!(r.len(), 100);
+        assert!(r.stored_observations() <= r.obs_capacity);
+        for i in 0..r.len() {
+            let (o, _, t, no, _) = r.get(i);
+            assert_eq!((o[0], o[1]), (no[0], t), "transition {i}");
+            assert_eq!(no[1], t + 1.0, "transition {i}");
+        }
+        assert_eq!(r.get(99).2, 19.0);
     }
 
     #[test]

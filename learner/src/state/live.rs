@@ -46,7 +46,7 @@ pub struct StageStats {
     /// Of which successes.
     pub successes: u64,
     /// Success rate over the stage's last [`STAGE_WINDOW`] episodes (NaN before any).
-    #[serde(deserialize_with = "super::status::f64_or_nan")]
+    #[serde(deserialize_with = "crate::json_f64::f64_or_nan")]
     pub recent_success_rate: f64,
 }
 
@@ -72,10 +72,10 @@ struct LiveInner {
 #[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct LiveSnapshot {
     /// Environment steps per second over the sampler's rate window (about 10 s).
-    #[serde(deserialize_with = "super::status::f64_or_nan")]
+    #[serde(deserialize_with = "crate::json_f64::f64_or_nan")]
     pub env_steps_per_s: f64,
     /// Learner updates per second over the sampler's rate window.
-    #[serde(deserialize_with = "super::status::f64_or_nan")]
+    #[serde(deserialize_with = "crate::json_f64::f64_or_nan")]
     pub updates_per_s: f64,
     /// Policy lag of the whole run.
     pub policy_lag: LagStats,

@@ -27,9 +27,7 @@ pub mod status;
 pub use error::LearnerError;
 pub use live::{LagStats, LiveMetrics, LiveSnapshot, StageStats};
 pub use saved::SavedState;
-pub use status::{
-    Ack, ActorCounters, Progress, Readiness, Registration, Stall, StatusSnapshot, f64_or_nan,
-};
+pub use status::{Ack, ActorCounters, Progress, Readiness, Registration, Stall, StatusSnapshot};
 
 use crate::curriculum::{Curriculum, CurriculumState};
 use crate::rate_limiter::RateLimiter;

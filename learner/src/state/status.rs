@@ -5,7 +5,8 @@
 
 use super::live::LiveSnapshot;
 use crate::curriculum::StageChange;
-use serde::{Deserialize, Deserializer, Serialize};
+use crate::json_f64::f64_or_nan;
+use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
 /// Counters of one actor.
@@ -167,10 +168,4 @@ pub struct Progress {
     pub trainer_last_error: Option<String>,
     /// Per actor.
     pub actors: Vec<ActorCounters>,
-}
-
-/// An `f64` written by serde_json, which writes NaN and ±∞ as `null`: read back as NaN, so a
-/// summary of a run whose losses diverged still reads.
-pub fn f64_or_nan<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
-    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
 }
