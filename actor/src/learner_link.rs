@@ -263,19 +263,6 @@ pub async fn register(client: &mut Client, name: &str, tls: bool) -> anyhow::Res
     })
 }
 
-/// Domain form of a wire update.
-pub fn variables_from_proto(u: pb::VariablesUpdate) -> Variables {
-    let (stage, room) = u.assignment.map(|a| (a.stage, a.room)).unwrap_or_default();
-    Variables {
-        version: u.version,
-        policy: Arc::new(u.safetensors.into()),
-        stage,
-        room,
-        warmup: u.warmup,
-        stop: u.stop,
-    }
-}
-
 /// Follows the variables stream into `tx` until it ends.
 pub async fn follow_variables(
     mut client: Client,
@@ -289,7 +276,7 @@ pub async fn follow_variables(
     loop {
         match stream.message().await {
             Ok(Some(u)) => {
-                tx.send_replace(Some(Arc::new(variables_from_proto(u))));
+                tx.send_replace(Some(Arc::new(dvnav_link::wire::variables_from_proto(u))));
             }
             Ok(None) => return None,
             Err(s) => return Some(format!("{:?}: {}", s.code(), s.message())),

@@ -2,7 +2,6 @@
 //! [`LearnerError`] to status codes in one place. No training logic lives here.
 
 use crate::state::{LearnerError, LearnerState, StatusSnapshot};
-use dvnav_link::core::Variables;
 use dvnav_proto as pb;
 use pb::learner_server::Learner;
 use std::pin::Pin;
@@ -80,17 +79,6 @@ pub fn transport_server(
             .tls_config(tls)
             .map_err(|e| anyhow::anyhow!("cannot set up TLS for the learner service: {e}")),
         None => Ok(server),
-    }
-}
-
-/// Wire form of the variables an actor receives; the weights are shared, not copied.
-pub fn variables_to_proto(v: &Variables) -> pb::VariablesUpdate {
-    pb::VariablesUpdate {
-        version: v.version,
-        safetensors: dvnav_link::wire::policy_bytes(&v.policy),
-        assignment: Some(pb::StageAssignment { stage: v.stage, room: v.room.clone() }),
-        warmup: v.warmup,
-        stop: v.stop,
     }
 }
 
@@ -271,7 +259,7 @@ impl Learner for LearnerService {
         tokio::spawn(async move {
             loop {
                 let v = rx.borrow_and_update().clone();
-                if tx.send(Ok(variables_to_proto(&v))).await.is_err() {
+                if tx.send(Ok(dvnav_link::wire::variables_to_proto(&v))).await.is_err() {
                     break;
                 }
                 tokio::select! {

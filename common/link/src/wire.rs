@@ -7,7 +7,7 @@
 //! [`EncodedBatch`] is a batch encoded once, when the actor's adder hands it over: the stream to
 //! the learner sends those bytes, and sends them again unchanged after a reconnect.
 
-use crate::core::{EpisodeStats, NextObs, TransitionBatch};
+use crate::core::{EpisodeStats, NextObs, TransitionBatch, Variables};
 use bytes::{BufMut, Bytes};
 use dvnav_proto as pb;
 use dvnav_sim::Outcome;
@@ -169,6 +169,30 @@ impl EncodedBatch {
         let head = pb::TransitionBatch { actor_id, sequence, ..Default::default() };
         head.encode(buf).expect("a growable buffer");
         buf.put_slice(&self.body);
+    }
+}
+
+/// Wire form of the variables an actor receives; the weights are shared, not copied.
+pub fn variables_to_proto(v: &Variables) -> pb::VariablesUpdate {
+    pb::VariablesUpdate {
+        version: v.version,
+        safetensors: policy_bytes(&v.policy),
+        assignment: Some(pb::StageAssignment { stage: v.stage, room: v.room.clone() }),
+        warmup: v.warmup,
+        stop: v.stop,
+    }
+}
+
+/// Domain form of a wire update (a missing assignment reads as stage 0 with no room).
+pub fn variables_from_proto(u: pb::VariablesUpdate) -> Variables {
+    let (stage, room) = u.assignment.map(|a| (a.stage, a.room)).unwrap_or_default();
+    Variables {
+        version: u.version,
+        policy: Arc::new(u.safetensors.into()),
+        stage,
+        room,
+        warmup: u.warmup,
+        stop: u.stop,
     }
 }
 
@@ -498,5 +522,20 @@ mod tests {
         let unnamed = |m: &mut pb::TransitionBatch| m.next_observations.extend([0.0; 3]);
         assert_eq!(field(&unnamed), "next_observations", "a row nobody continues into");
         assert_eq!(field(&|m| m.next_observations[4] = f32::INFINITY), "next_observations");
+    }
+
+    #[test]
+    fn variables_cross_the_wire_unchanged_and_share_their_weights() {
+        let v = Variables {
+            version: 4,
+            policy: Arc::new(vec![1, 2, 3]),
+            stage: 2,
+            room: "env2".into(),
+            warmup: false,
+            stop: true,
+        };
+        let msg = variables_to_proto(&v);
+        assert_eq!(msg.safetensors.as_ptr(), v.policy.as_ptr(), "no copy per stream");
+        assert_eq!(variables_from_proto(msg), v);
     }
 }
