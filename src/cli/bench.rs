@@ -39,7 +39,7 @@ enum BenchWhat {
     /// Replay buffer: memory per transition and observations stored per transition when
     /// filled from real episodes (env0, PID with noise), insertion rate, and sampling time.
     Replay {
-        /// Transitions to fill (the paper's buffer: 500,000, ~0.6 GB).
+        /// Transitions to fill (the paper's buffer: 500,000; its memory: docs/results.md).
         #[arg(long, default_value_t = 500_000)]
         capacity: usize,
         /// Minibatch size sampled.
@@ -152,7 +152,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
                 println!("{r}");
             } else {
                 println!(
-                    "transport: {:.0} transitions/s ({:.1} MB/s of observations) over loopback gRPC, batch {}",
+                    "transport: {:.0} transitions/s ({:.1} MB/s of encoded batches) over loopback gRPC, batch {}",
                     r["transitions_per_s"].as_f64().unwrap_or(0.0),
                     r["mb_per_s"].as_f64().unwrap_or(0.0),
                     batch
@@ -350,6 +350,8 @@ async fn bench_transport(transitions: usize, batch: usize) -> anyhow::Result<ser
         b.push(&obs, [0.1, -0.2], 0.01, &obs, false, false, 1);
     }
     let n_batches = transitions.div_ceil(batch);
+    // Bytes on the wire per batch: the encoded body (the two header fields add a few more).
+    let batch_bytes = dvnav_link::wire::EncodedBatch::new(&b).body_len();
     let t = Instant::now();
     // As an actor sends: each batch encoded once (timed, as the encoding always was), its bytes
     // written as they are.
@@ -371,7 +373,7 @@ async fn bench_transport(transitions: usize, batch: usize) -> anyhow::Result<ser
         accepted == (n_batches * batch) as u64,
         "only {accepted} transitions acknowledged"
     );
-    let bytes = accepted as f64 * (2 * d + 6) as f64 * 4.0;
+    let bytes = (n_batches * batch_bytes) as f64;
     Ok(serde_json::json!({
         "transitions_per_s": accepted as f64 / secs,
         "mb_per_s": bytes / secs / 1e6,
