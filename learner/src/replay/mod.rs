@@ -9,6 +9,17 @@ use dvnav_link::core::{NextObs, TransitionBatch};
 use dvnav_sim::obs::ACTION_DIM;
 use rand::Rng;
 
+/// Makes room in `v` for one more observation of `per_obs` values, growing (by doubling, as
+/// `Vec` does) but never past `obs_capacity` observations: doubling past the store's size
+/// would hold up to twice the memory the buffer can ever use.
+fn grow_within<T>(v: &mut Vec<T>, per_obs: usize, obs_capacity: usize) {
+    if v.len() + per_obs > v.capacity() {
+        let limit = obs_capacity * per_obs;
+        let more = v.len().max(per_obs).min(limit.saturating_sub(v.len())).max(per_obs);
+        v.reserve_exact(more);
+    }
+}
+
 /// A sampled minibatch, laid out for tensors. Named fields rather than a tuple, and
 /// `terminated` kept apart from truncation: only termination masks the bootstrap.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -45,8 +56,9 @@ pub struct Batch {
 /// transition's next id is above its own: the oldest stored observation is always the oldest
 /// transition's, and eviction only ever drops transitions from the oldest end.
 ///
-/// The observation store holds `obs_capacity` observations (an eighth more than one per
-/// transition, to absorb episode ends and batch boundaries). If a stream pairs observations
+/// The observation store holds `obs_capacity` observations (a quarter more than one per
+/// transition, to absorb episode ends and batch boundaries: an actor of 16 environments and
+/// batches of 128 repeats an eighth; the store only grows as far as a stream needs it). If a stream pairs observations
 /// worse than that, the oldest transitions are dropped earlier to free theirs: the buffer then
 /// holds fewer than `capacity` transitions, never a transition with a missing observation.
 #[derive(Debug)]
@@ -82,7 +94,7 @@ impl ReplayBuffer {
         Self {
             codec,
             capacity,
-            obs_capacity: capacity + capacity / 8 + 1024,
+            obs_capacity: capacity + capacity / 4 + 1024,
             scans: Vec::new(),
             extras: Vec::new(),
             next_obs_id: 0,
@@ -183,6 +195,8 @@ impl ReplayBuffer {
         let slot = (id % self.obs_capacity as u64) as usize;
         let (s, e) = (self.codec.scan_len, self.codec.extra_len());
         if slot * s == self.scans.len() && slot * e == self.extras.len() {
+            grow_within(&mut self.scans, s, self.obs_capacity);
+            grow_within(&mut self.extras, e, self.obs_capacity);
             self.scans.extend_from_slice(scan);
             self.extras.extend_from_slice(extra);
         } else {
@@ -440,5 +454,21 @@ mod tests {
         let per_transition = 2 * 8 + ACTION_DIM * 4 + 4 + 1;
         let bytes = r.obs_capacity * codec.bytes_per_obs() + 500_000 * per_transition;
         assert!(bytes < 700 << 20, "{} MiB", bytes >> 20);
+    }
+
+    /// `Vec`'s doubling would take the store to twice the observations it can ever hold; it
+    /// stops at `obs_capacity`.
+    #[test]
+    fn the_observation_store_never_grows_past_its_capacity() {
+        let mut r = ReplayBuffer::new(ObsCodec::plain(3), 3000);
+        let mut b = TransitionBatch::with_capacity(3, 10_000);
+        for i in 0..10_000 {
+            let x = i as f32;
+            b.push(&[x; 3], [0.0, 0.0], x, &[-x; 3], false, false, 1);
+        }
+        r.insert(&b);
+        assert_eq!(r.stored_observations(), r.obs_capacity);
+        let held = r.scans.capacity() + r.extras.capacity();
+        assert!(held <= r.obs_capacity * 3, "{held} values for {} observations", r.obs_capacity);
     }
 }
