@@ -29,6 +29,10 @@ test-learning:
 # packages (in a venv under target/) decode every message of a fresh ~3 s run that logs every
 # episode (scripts/check_mcap.py). Skips, exit 0, when python3 with venv is not installed.
 PYTHON ?= python3
+# The checks below run target/debug/dvnav. Built with the workspace's test targets, so it has
+# the same features as `make test`'s (dev-dependencies such as tokio's test-util count) and is a
+# no-op after it; `--bin dvnav` alone would rebuild tokio and everything above it.
+DVNAV_BIN := --workspace --all-targets
 PYENV := target/pyenv
 CHECK_RUN := target/check-mcap/run
 check-mcap:
@@ -39,7 +43,7 @@ check-mcap:
 	set -e; \
 	[ -x $(PYENV)/bin/python ] || $(PYTHON) -m venv $(PYENV); \
 	$(PYENV)/bin/pip install --quiet --disable-pip-version-check -r scripts/requirements.txt; \
-	$(CARGO) build --bin dvnav; \
+	$(CARGO) build $(DVNAV_BIN); \
 	rm -rf $(CHECK_RUN); \
 	./target/debug/dvnav train --actors 2 --config scripts/check_mcap.toml --out $(CHECK_RUN) --progress-every-s 60; \
 	./target/debug/dvnav inspect $(CHECK_RUN) --check | tail -n 1; \
@@ -56,7 +60,7 @@ check-deploy:
 		exit 0; \
 	fi; \
 	set -e; \
-	$(CARGO) build --bin dvnav; \
+	$(CARGO) build $(DVNAV_BIN); \
 	if $(PYTHON) -c 'import yaml' >/dev/null 2>&1; then py=$(PYTHON); else \
 		[ -x $(PYENV)/bin/python ] || $(PYTHON) -m venv $(PYENV); \
 		$(PYENV)/bin/pip install --quiet --disable-pip-version-check pyyaml; \
@@ -69,7 +73,7 @@ check-deploy:
 # and the run must carry on (reconnect, every sent transition received once). Needs root for
 # `ip netns`; skips, exit 0, where namespaces cannot be made. ~100 s.
 test-multihost:
-	$(CARGO) build --bin dvnav
+	$(CARGO) build $(DVNAV_BIN)
 	bash scripts/multihost.sh target/debug/dvnav
 
 # Crate layering and no import loops inside a crate (scripts/check_layers.py; Python 3.11+).
