@@ -8,7 +8,7 @@
 use dvnav_nav::dvst::{Dvst, VariedRobot};
 use dvnav_nav::policy::{MetaAgent, NavPolicy};
 use dvnav_proto::controller::v1::controller_client::ControllerClient;
-use dvnav_proto::controller::v1::{ActRequest, InfoRequest, SetFootprintRequest};
+use dvnav_proto::controller::v1::{ActRequest, InfoRequest, LaserScan, SetFootprintRequest};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -114,6 +114,7 @@ fn request(k: usize) -> ActRequest {
         v: 0.05 * k as f64,
         omega: 0.2 - 0.04 * k as f64,
         robot_id: "test-robot".into(),
+        ..ActRequest::default()
     }
 }
 
@@ -128,7 +129,7 @@ async fn a_robot_drives_through_the_service_and_changes_its_footprint() {
     let server = Server::start(dir.path(), "footprints/small-0.15.toml", &[]);
     let mut client = server.client().await;
 
-    let info = client.info(InfoRequest {}).await.unwrap().into_inner();
+    let info = client.info(InfoRequest::default()).await.unwrap().into_inner();
     assert_eq!(info.scan_beams, 540);
     assert_eq!((info.scan_fov_deg, info.range_min, info.range_max), (270.0, 0.02, 10.0));
     assert!((info.mu - 0.75).abs() < 1e-12, "{info:?}");
@@ -188,8 +189,13 @@ async fn a_robot_drives_through_the_service_and_changes_its_footprint() {
     let got = client.act(request(3)).await.unwrap().into_inner();
     assert_eq!((got.mu, got.footprint_version), (changed.mu, 2), "{got:?}");
     assert_eq!(got.footprint, "circle r=0.5");
-    let info = client.info(InfoRequest {}).await.unwrap().into_inner();
+    let info = client.info(InfoRequest { robot_id: "test-robot".into() }).await.unwrap();
+    let info = info.into_inner();
     assert_eq!((info.mu, info.footprint_version), (changed.mu, 2));
+    assert!((info.goal_tolerance - 0.5).abs() < 1e-12, "0.2 m scaled by μ = 2.5: {info:?}");
+    let other = client.info(InfoRequest::default()).await.unwrap().into_inner();
+    assert!((other.mu - 0.75).abs() < 1e-12, "another robot: the default: {other:?}");
+    assert_eq!(other.footprint_version, 1);
 
     drop(client);
     let (status, log) = server.stop().await;
@@ -218,7 +224,7 @@ async fn with_a_token_calls_without_it_are_unauthenticated() {
 
     let e = client.act(request(0)).await.unwrap_err();
     assert_eq!(e.code(), Code::Unauthenticated, "{e:?}");
-    let e = client.info(InfoRequest {}).await.unwrap_err();
+    let e = client.info(InfoRequest::default()).await.unwrap_err();
     assert_eq!(e.code(), Code::Unauthenticated, "{e:?}");
     let with = |t: &str, r: ActRequest| {
         let mut req = tonic::Request::new(r);
@@ -256,7 +262,7 @@ async fn a_hung_client_does_not_keep_the_server_from_stopping() {
     let dir = tempfile::tempdir().unwrap();
     let server = Server::start(dir.path(), "footprints/circle-0.5.toml", &[]);
     let mut client = server.client().await;
-    assert_eq!(client.info(InfoRequest {}).await.unwrap().into_inner().scan_beams, 540);
+    assert_eq!(client.info(InfoRequest::default()).await.unwrap().into_inner().scan_beams, 540);
     // From here this test's (single-threaded) runtime no longer drives the connection.
     let t = Instant::now();
     let (status, log) = server.stop_blocking();
@@ -294,14 +300,14 @@ async fn over_tls_a_client_with_the_ca_is_answered_and_a_plaintext_one_is_not() 
     let tls = trusting(file("certs", "ca.pem")).load().unwrap();
     let channel = endpoint(&https, tls.as_ref()).unwrap().connect().await.unwrap();
     let mut client = ControllerClient::new(channel);
-    let info = client.info(InfoRequest {}).await.unwrap().into_inner();
+    let info = client.info(InfoRequest::default()).await.unwrap().into_inner();
     assert_eq!((info.scan_beams, info.footprint.as_str()), (540, "small r=0.15"));
     let got = client.act(request(0)).await.unwrap().into_inner();
     assert!(got.v.abs() <= 0.5 && got.footprint_version == 1, "{got:?}");
 
     // Plaintext: the connection may open, but no call is answered.
     if let Ok(mut plain) = ControllerClient::connect(server.url.clone()).await {
-        let e = plain.info(InfoRequest {}).await.expect_err("a plaintext call is answered");
+        let e = plain.info(InfoRequest::default()).await.expect_err("a plaintext call is answered");
         assert_ne!(e.code(), Code::Ok);
         let e = plain.act(request(1)).await.expect_err("a plaintext call is answered");
         assert_ne!(e.code(), Code::Ok);
@@ -312,10 +318,157 @@ async fn over_tls_a_client_with_the_ca_is_answered_and_a_plaintext_one_is_not() 
     let text = dvnav_tls::error_chain(&e);
     assert!(text.contains("invalid peer certificate: UnknownIssuer"), "{text}");
     // The trusted client is still answered.
-    assert_eq!(client.info(InfoRequest {}).await.unwrap().into_inner().scan_beams, 540);
+    assert_eq!(client.info(InfoRequest::default()).await.unwrap().into_inner().scan_beams, 540);
 
     drop(client);
     let (status, log) = server.stop().await;
     assert!(status.success(), "{status}: {log}");
     assert!(log.contains("tls=true") && log.contains("commands=1"), "{log}");
+}
+
+/// A Hokuyo UTM-30LX's scan as ROS gives it: 1,081 readings 0.25° apart over 270°, some with
+/// no return (+inf).
+fn hokuyo(k: usize) -> LaserScan {
+    let ranges =
+        (0..1081)
+            .map(|j| {
+                if j % 97 == k % 97 {
+                    f32::INFINITY
+                } else {
+                    0.5 + ((j + 5 * k) % 300) as f32 * 0.02
+                }
+            })
+            .collect();
+    LaserScan {
+        angle_min: -135f64.to_radians(),
+        angle_increment: 0.25f64.to_radians(),
+        range_min: 0.023,
+        range_max: 30.0,
+        ranges,
+    }
+}
+
+fn code(e: tonic::Status, code: Code, says: &str) {
+    assert_eq!(e.code(), code, "{e:?}");
+    assert!(e.message().contains(says), "`{says}` not in {e:?}");
+}
+
+#[tokio::test]
+async fn many_robots_send_laser_scans_arrive_and_expire_and_bad_input_is_refused() {
+    use dvnav_nav::dvst::DvstController;
+    use dvnav_nav::dvst::controller::{ModelId, RobotInput, Scan};
+    let dir = tempfile::tempdir().unwrap();
+    let extra = ["--max-robots", "2", "--robot-idle-s", "1"];
+    let server = Server::start(dir.path(), "footprints/small-0.15.toml", &extra);
+    let mut client = server.client().await;
+    let info = client.info(InfoRequest::default()).await.unwrap().into_inner();
+    assert!((info.goal_tolerance - 0.15).abs() < 1e-12, "0.2 m at μ = 0.75: {info:?}");
+    assert_eq!((info.max_robots, info.robot_idle_s, info.robots), (2, 1.0, 0));
+    assert_eq!((info.lidar_x, info.lidar_yaw, info.lidar_uncovered_range), (0.0, 0.0, 0.0));
+
+    // LaserScans: the command is the in-process controller's, bit for bit.
+    let (agent, cfg) = MetaAgent::load(&repo("models/meta-r0.2")).unwrap();
+    let text = std::fs::read_to_string(repo("footprints/small-0.15.toml")).unwrap();
+    let model = ModelId { name: "m".into(), version: "v".into() };
+    let local = DvstController::new(agent, &cfg, model, &text, "small", None).unwrap();
+    let act = |k: usize, robot: &str| ActRequest {
+        laser_scan: Some(hokuyo(k)),
+        goal_distance: 1.5,
+        goal_angle: 0.3,
+        v: 0.1,
+        omega: 0.0,
+        robot_id: robot.into(),
+        ..ActRequest::default()
+    };
+    for k in 0..5 {
+        let r = act(k, "a");
+        let l = r.laser_scan.as_ref().unwrap();
+        let scan = dvnav_nav::dvst::LaserScan {
+            angle_min: l.angle_min,
+            angle_increment: l.angle_increment,
+            range_min: l.range_min,
+            range_max: l.range_max,
+            ranges: &l.ranges,
+        };
+        let want = local.act(&RobotInput::new(Scan::Laser(scan), 1.5, 0.3, 0.1, 0.0)).unwrap();
+        let got = client.act(r).await.unwrap().into_inner();
+        assert_eq!((got.v, got.omega), (want.v, want.omega), "call {k}");
+        assert_eq!((got.filled_beams, got.arrived), (0, false));
+        assert!((got.goal_tolerance - 0.15).abs() < 1e-12);
+    }
+    // A 180° sensor leaves the meta agent's outer 45° each side unseen, and says so.
+    let mut narrow = act(0, "a");
+    let l = narrow.laser_scan.as_mut().unwrap();
+    l.angle_min = -90f64.to_radians();
+    l.ranges.truncate(721);
+    assert_eq!(client.act(narrow).await.unwrap().into_inner().filled_beams, 178);
+
+    // Arrival: within the tolerance the robot stops.
+    let near = ActRequest { goal_distance: 0.1, ..act(1, "a") };
+    let got = client.act(near).await.unwrap().into_inner();
+    assert_eq!((got.arrived, got.v, got.omega), (true, 0.0, 0.0), "{got:?}");
+
+    // A second robot with a footprint of its own; the first keeps the default.
+    let big = std::fs::read_to_string(repo("footprints/circle-0.5.toml")).unwrap();
+    let set = SetFootprintRequest { footprint_toml: big, robot_id: "big".into() };
+    let set = client.set_footprint(set).await.unwrap().into_inner();
+    assert!((set.mu - 2.5).abs() < 1e-12 && (set.goal_tolerance - 0.5).abs() < 1e-12);
+    let b = client.act(act(2, "big")).await.unwrap().into_inner();
+    let a = client.act(act(2, "a")).await.unwrap().into_inner();
+    assert_eq!((b.mu, b.footprint_version), (set.mu, set.footprint_version));
+    assert!((a.mu - 0.75).abs() < 1e-12 && a.footprint_version == 1, "{a:?}");
+    assert_eq!(
+        client.info(InfoRequest { robot_id: "big".into() }).await.unwrap().into_inner().mu,
+        2.5
+    );
+    assert_eq!(client.info(InfoRequest::default()).await.unwrap().into_inner().robots, 2);
+
+    // A third robot while both are active: RESOURCE_EXHAUSTED.
+    let e = client.act(act(3, "third")).await.unwrap_err();
+    code(e, Code::ResourceExhausted, "2 robots are active");
+    // A robot that expects another footprint than its own: FAILED_PRECONDITION.
+    let stale = ActRequest { expected_footprint_version: 1, ..act(3, "big") };
+    code(client.act(stale).await.unwrap_err(), Code::FailedPrecondition, "SetFootprint");
+
+    // Silent for the idle time: `big` is forgotten; expecting its footprint it is refused
+    // rather than driven as the small default robot, and the third robot finds room.
+    tokio::time::sleep(Duration::from_millis(1200)).await;
+    let expects = ActRequest { expected_footprint_version: set.footprint_version, ..act(4, "big") };
+    code(client.act(expects).await.unwrap_err(), Code::FailedPrecondition, "version 1");
+    assert!(client.act(act(4, "third")).await.is_ok());
+
+    // Every other refusal names its field.
+    let both = ActRequest { scan: vec![1.0; 540], ..act(5, "a") };
+    invalid(client.act(both).await.unwrap_err(), "laser_scan");
+    for (r, field) in [
+        (ActRequest { goal_distance: 1e39, ..act(5, "a") }, "goal_distance"),
+        (ActRequest { v: 1e308, ..act(5, "a") }, "v"),
+        (ActRequest { omega: 1e5, ..act(5, "a") }, "omega"),
+        (ActRequest { goal_angle: -1e300, ..act(5, "a") }, "goal_angle"),
+        (ActRequest { robot_id: "r".repeat(129), ..act(5, "a") }, "robot_id"),
+    ] {
+        invalid(client.act(r).await.unwrap_err(), field);
+    }
+    for (change, field) in [
+        (
+            (|l: &mut LaserScan| l.angle_increment = 0.0) as fn(&mut LaserScan),
+            "laser_scan.angle_increment",
+        ),
+        (|l: &mut LaserScan| l.range_max = 1e39, "laser_scan.range_max"),
+        (|l: &mut LaserScan| l.range_min = f64::NAN, "laser_scan.range_min"),
+        (|l: &mut LaserScan| l.ranges.clear(), "laser_scan.ranges"),
+        (|l: &mut LaserScan| l.angle_increment = 0.02, "laser_scan.angle_increment"),
+    ] {
+        let mut r = act(6, "a");
+        change(r.laser_scan.as_mut().unwrap());
+        invalid(client.act(r).await.unwrap_err(), field);
+    }
+    let long = InfoRequest { robot_id: "r".repeat(129) };
+    invalid(client.info(long).await.unwrap_err(), "robot_id");
+    let long = SetFootprintRequest { footprint_toml: text.clone(), robot_id: "r".repeat(129) };
+    invalid(client.set_footprint(long).await.unwrap_err(), "robot_id");
+
+    drop(client);
+    let (status, log) = server.stop().await;
+    assert!(status.success(), "{status}: {log}");
 }

@@ -80,7 +80,9 @@ enum BenchWhat {
         json: bool,
     },
     /// DVST controller latency at batch 1 (`dvnav serve`): `Act` round trips over loopback
-    /// gRPC, and the same commands in-process (checks, DVST and the policy, no network).
+    /// gRPC, and the same commands in-process (checks, DVST and the policy, no network), with
+    /// the meta agent's scan layout and with a 1,081-reading LaserScan; then a fleet of robots
+    /// on one server (100 at 10 Hz by default).
     Serve {
         /// The meta agent (default: the shipped `models/meta-r0.2`).
         #[arg(long)]
@@ -91,6 +93,15 @@ enum BenchWhat {
         /// Commands timed each way (after 50 warm-up calls).
         #[arg(long, default_value_t = 2_000)]
         calls: usize,
+        /// Robots of the fleet driven at once, each on its own connection with its own id.
+        #[arg(long, default_value_t = 100)]
+        robots: usize,
+        /// Each fleet robot's control rate (Hz).
+        #[arg(long, default_value_t = 10.0)]
+        rate_hz: f64,
+        /// How long the fleet drives (s, after 1 s of settling).
+        #[arg(long, default_value_t = 10.0)]
+        seconds: f64,
         /// Print one JSON object.
         #[arg(long)]
         json: bool,
@@ -233,11 +244,12 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
                 );
             }
         }
-        BenchWhat::Serve { checkpoint, footprint, calls, json } => {
+        BenchWhat::Serve { checkpoint, footprint, calls, robots, rate_hz, seconds, json } => {
             let repo = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
             let checkpoint = checkpoint.unwrap_or_else(|| repo.join("models/meta-r0.2"));
             let footprint = footprint.unwrap_or_else(|| repo.join("footprints/paper-medium.toml"));
-            let r = super::serve::bench(&checkpoint, &footprint, calls)?;
+            let fleet = super::serve::FleetLoad { robots, rate_hz, seconds };
+            let r = super::serve::bench(&checkpoint, &footprint, calls, fleet)?;
             if json {
                 println!("{}", serde_json::to_string(&r)?);
             } else {

@@ -1,13 +1,15 @@
-//! [`DvstController`]: what `dvnav serve` does, without the network. A robot sends its scan,
-//! goal and velocity each control cycle ([`RobotInput`]) and gets the meta agent's command
-//! through DVST back ([`Command`]); its footprint can change at run time
-//! ([`DvstController::set_footprint_toml`]).
+//! [`DvstController`]: what `dvnav serve` does, without the network. Robots send their scan,
+//! goal and velocity each control cycle ([`RobotInput`]) and get the meta agent's command
+//! through DVST back ([`Command`]); each robot, by its id, has its own footprint, which can
+//! change at run time ([`DvstController::set_footprint_toml`]).
 //!
-//! The controller owns a [`Dvst`] behind a mutex: a request is checked before the lock is
-//! taken (a malformed one never reaches the policy), and a footprint change swaps robot, μ and
-//! bounds under the same lock that [`act`](DvstController::act) holds, so every command is
-//! computed wholly with the old footprint or wholly with the new one, and says which
-//! ([`Command::footprint_version`]).
+//! One meta agent drives every robot. A request is checked whole before anything else (a
+//! malformed one never reaches the policy, and every field is bounded so that no valid request
+//! can overflow the policy's f32 arithmetic); the robot's footprint state is an immutable
+//! snapshot swapped whole by a footprint change, so every command is computed wholly with the
+//! old footprint or wholly with the new one, and says which ([`Command::footprint_version`]).
+//! Robots are held in a bounded [`RobotTable`]: an id never seen, or one silent for longer than
+//! the idle time, drives with the server's default footprint.
 //!
 //! The meta robot is the one the model was trained as (its run configuration's
 //! `env.robot_radius` or `env.footprint`): a footprint file that leaves `[meta]` out gets it,
@@ -15,7 +17,7 @@
 //! robot the agent never was.
 //!
 //! ```no_run
-//! use dvnav_nav::dvst::controller::{DvstController, ModelId, RobotInput};
+//! use dvnav_nav::dvst::controller::{DvstController, ModelId, RobotInput, Scan};
 //! use dvnav_nav::policy::MetaAgent;
 //! # fn main() -> anyhow::Result<()> {
 //! let (agent, cfg) = MetaAgent::load("models/meta-r0.2".as_ref())?;
@@ -23,24 +25,40 @@
 //! let model = ModelId { name: "meta-r0.2".into(), version: "unversioned".into() };
 //! let ctl = DvstController::new(agent, &cfg, model, &toml, "paper-medium.toml", None)?;
 //! let scan = vec![10.0; ctl.beams()];
-//! let input = RobotInput { scan: &scan, goal_distance: 2.0, goal_angle: 0.3, v: 0.0, omega: 0.0 };
+//! let input = RobotInput::new(Scan::Meta(&scan), 2.0, 0.3, 0.0, 0.0);
 //! let command = ctl.act(&input)?;
 //! println!("v = {:.3} m/s, ω = {:.3} rad/s at μ = {}", command.v, command.omega, command.mu);
 //! # Ok(())
 //! # }
 //! ```
 
-use super::agent::Dvst;
 use super::footprint_file::VariedRobot;
+use super::laser_scan::{self, BeamLayout, LaserScan, MAX_RANGE_M};
+use super::robots::{RobotTable, TableFull};
 use super::scale::MetaRobot;
-use super::transfer::VelocityBounds;
+use super::transfer::{VelocityBounds, transfer_observation, transfer_policy};
 use crate::policy::NavPolicy;
 use dvnav_config::Config;
 use dvnav_sim::obs::{ANGULAR_VELOCITY, GOAL_ANGLE, GOAL_DISTANCE, LINEAR_VELOCITY, obs_dim};
 use dvnav_sim::{Footprint, SpecFileError};
 use std::f64::consts::{PI, TAU};
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::time::{Duration, Instant};
+
+/// The fastest a robot may say it moves (m/s), and turns (rad/s): far beyond any ground robot,
+/// well within f32.
+pub const MAX_SPEED: f64 = 1.0e3;
+/// The largest goal bearing (rad) accepted before wrapping.
+pub const MAX_GOAL_ANGLE: f64 = 1.0e6;
+/// The longest robot id (bytes).
+pub const MAX_ROBOT_ID: usize = 128;
+/// The longest footprint file (bytes).
+pub const MAX_FOOTPRINT_TOML: usize = 64 * 1024;
+/// Robots one controller drives at once, by default.
+pub const DEFAULT_MAX_ROBOTS: usize = 256;
+/// How long a robot may be silent before its place and footprint are dropped, by default.
+pub const DEFAULT_ROBOT_IDLE: Duration = Duration::from_secs(600);
 
 /// The model a controller drives with, as it reports it.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -51,11 +69,22 @@ pub struct ModelId {
     pub version: String,
 }
 
+/// A robot's scan, in one of two forms.
+#[derive(Clone, Copy, Debug)]
+pub enum Scan<'a> {
+    /// Ranges (m) already in the meta agent's beam layout ([`dvnav_sim::Lidar`]) from the axle
+    /// centre: finite, ≥ 0, exactly [`DvstController::beams`] of them.
+    Meta(&'a [f32]),
+    /// Any LiDAR's scan as ROS describes it, resampled with the robot's
+    /// [`super::SensorSetup`] ([`laser_scan`]).
+    Laser(LaserScan<'a>),
+}
+
 /// One control cycle's observation, as the robot measures it (physical units, robot frame).
 #[derive(Clone, Copy, Debug)]
 pub struct RobotInput<'a> {
-    /// LiDAR ranges (m) in the meta agent's beam layout ([`dvnav_sim::Lidar`]), finite, ≥ 0.
-    pub scan: &'a [f32],
+    /// What its LiDAR sees.
+    pub scan: Scan<'a>,
     /// Distance to the goal (m), ≥ 0.
     pub goal_distance: f64,
     /// Bearing of the goal (rad, left positive); an angle outside [−π, π] is wrapped into it.
@@ -64,24 +93,50 @@ pub struct RobotInput<'a> {
     pub v: f64,
     /// Current angular velocity (rad/s).
     pub omega: f64,
+    /// Which robot: its footprint is looked up by this id ("" is a robot like any other).
+    pub robot_id: &'a str,
+    /// The footprint version the robot believes it drives with; a command for another one is
+    /// refused ([`ControllerError::FootprintChanged`]). `None`: any.
+    pub expected_footprint_version: Option<u64>,
+}
+
+impl<'a> RobotInput<'a> {
+    /// An input of robot "" that accepts any footprint version.
+    pub fn new(scan: Scan<'a>, goal_distance: f64, goal_angle: f64, v: f64, omega: f64) -> Self {
+        RobotInput {
+            scan,
+            goal_distance,
+            goal_angle,
+            v,
+            omega,
+            robot_id: "",
+            expected_footprint_version: None,
+        }
+    }
 }
 
 /// The answer to one [`RobotInput`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct Command {
-    /// Linear velocity (m/s), within the robot's bounds.
+    /// Linear velocity (m/s), within the robot's bounds; 0 once arrived.
     pub v: f64,
-    /// Angular velocity (rad/s), within the robot's bounds.
+    /// Angular velocity (rad/s), within the robot's bounds; 0 once arrived.
     pub omega: f64,
+    /// The robot is within `goal_tolerance` of its goal.
+    pub arrived: bool,
+    /// The robot's [`FootprintState::goal_tolerance`] (m).
+    pub goal_tolerance: f64,
+    /// Meta beams no valid reading of a `LaserScan` reached (0 for the meta form).
+    pub filled_beams: usize,
     /// The μ it was computed with.
     pub mu: f64,
     /// The footprint's name.
     pub footprint: String,
-    /// Which footprint it was computed with: 1 at start-up, +1 per footprint change.
+    /// Which footprint it was computed with ([`FootprintState::version`]).
     pub footprint_version: u64,
 }
 
-/// The robot a controller drives now.
+/// A robot's footprint as a controller drives it: one immutable snapshot.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FootprintState {
     /// The varied robot, as its file describes it (with the controller's margin, if one was
@@ -93,14 +148,18 @@ pub struct FootprintState {
     pub scaled: MetaRobot,
     /// The bounds commands stay within: the robot's own, else the meta agent's.
     pub bounds: VelocityBounds,
-    /// 1 at start-up, +1 per footprint change.
+    /// The distance (m) within which the robot has arrived: the meta agent's goal tolerance
+    /// scaled by μ, as the meta agent sees it.
+    pub goal_tolerance: f64,
+    /// 1 for the server's default footprint; every footprint change gets a new number, never
+    /// used before by this server.
     pub version: u64,
 }
 
-/// What a controller expects and drives with.
+/// What a controller expects and drives with, for one robot.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ControllerInfo {
-    /// Scan length a request must carry.
+    /// Scan length the meta form of a request must carry.
     pub beams: usize,
     /// The meta agent's LiDAR field of view (degrees).
     pub fov_deg: f64,
@@ -110,12 +169,18 @@ pub struct ControllerInfo {
     pub control_period_s: f64,
     /// The meta agent's velocity bounds.
     pub meta_bounds: VelocityBounds,
-    /// The current robot.
+    /// The robot asked about (its own footprint, else the default).
     pub footprint: FootprintState,
     /// The model.
     pub model: ModelId,
-    /// Commands answered so far.
+    /// Commands answered so far (all robots).
     pub commands: u64,
+    /// Robots active now, at most `max_robots`, each dropped after `robot_idle` silent.
+    pub robots: usize,
+    /// See `robots`.
+    pub max_robots: usize,
+    /// See `robots`.
+    pub robot_idle: Duration,
 }
 
 /// Why a request was refused.
@@ -129,6 +194,23 @@ pub enum ControllerError {
         /// What is wrong with it.
         reason: String,
     },
+    /// No room for another robot.
+    #[error(transparent)]
+    TooManyRobots(#[from] TableFull),
+    /// The robot's footprint is not the one it expected (its session expired, or another
+    /// caller changed it): no command was computed.
+    #[error(
+        "robot `{robot}` drives with footprint version {current}, not {expected}; set its \
+         footprint again (SetFootprint) or expect version {current}"
+    )]
+    FootprintChanged {
+        /// The robot id.
+        robot: String,
+        /// The version the request expected.
+        expected: u64,
+        /// The robot's version now.
+        current: u64,
+    },
     /// The policy failed on a valid request.
     #[error("the policy failed: {0:#}")]
     Policy(anyhow::Error),
@@ -140,23 +222,28 @@ impl ControllerError {
     }
 }
 
-/// What the lock guards: the policy, the observation buffer it is fed from, and the version
-/// of the footprint it drives.
+/// What the policy lock guards: the policy and the meta observation it is fed from.
 #[derive(Debug)]
-struct Inner<P> {
-    dvst: Dvst<P>,
-    obs: Vec<f32>,
-    footprint_version: u64,
+struct PolicySlot<P> {
+    policy: P,
+    meta_obs: Vec<f32>,
 }
 
-/// A meta agent driving one varied robot through DVST, shared by the requests of a service.
+/// A meta agent driving many varied robots through DVST, shared by the requests of a service.
 #[derive(Debug)]
 pub struct DvstController<P> {
-    inner: Mutex<Inner<P>>,
+    policy: Mutex<PolicySlot<P>>,
+    robots: Mutex<RobotTable<Arc<FootprintState>>>,
+    /// The robot of `dvnav serve --footprint`: every robot without one of its own.
+    default_robot: Arc<FootprintState>,
+    next_version: AtomicU64,
     beams: usize,
     fov_deg: f64,
     scan_range: [f64; 2],
     control_period_s: f64,
+    /// The meta agent's goal tolerance (m).
+    goal_tolerance: f64,
+    meta_bounds: VelocityBounds,
     /// The model's meta robot: every footprint gets it.
     meta: MetaRobot,
     /// A margin forced on every footprint (`dvnav serve --margin`), else each file's own.
@@ -166,9 +253,10 @@ pub struct DvstController<P> {
 }
 
 impl<P: NavPolicy> DvstController<P> {
-    /// Drives `policy`, trained with the run configuration `cfg`, for the varied robot of the
-    /// footprint file `robot_toml` (`source` names it in errors). `margin` replaces the file's
-    /// margin, here and in every later footprint.
+    /// Drives `policy`, trained with the run configuration `cfg`, for robots of the footprint
+    /// file `robot_toml` (`source` names it in errors) unless they set their own. `margin`
+    /// replaces the file's margin, here and in every later footprint. Room for
+    /// [`DEFAULT_MAX_ROBOTS`] robots ([`with_robot_limits`](Self::with_robot_limits)).
     pub fn new(
         policy: P,
         cfg: &Config,
@@ -184,6 +272,13 @@ impl<P: NavPolicy> DvstController<P> {
             policy.beams(),
             lidar.beams
         );
+        anyhow::ensure!(
+            policy.obs_dim() == obs_dim(policy.beams()),
+            "DVST transfers the standard observation of {} values; this policy takes {} (a \
+             policy with the robot radius as an input is driven with each robot's own radius)",
+            obs_dim(policy.beams()),
+            policy.obs_dim()
+        );
         if let Some(m) = margin {
             anyhow::ensure!(m.is_finite() && m >= 0.0, "the margin must be ≥ 0 m, got {m}");
         }
@@ -195,19 +290,24 @@ impl<P: NavPolicy> DvstController<P> {
                 trained.name
             )
         })?;
-        let robot = robot_from_toml(robot_toml, source, meta, margin)?;
+        let (v_max, omega_max) = policy.velocity_bounds();
+        let meta_bounds = VelocityBounds { v_max, omega_max };
+        meta_bounds.validate()?;
         let scan_range = [lidar.range_min, lidar.range_max];
-        let dvst = Dvst::new(policy, robot)?.with_scan_range(Some(scan_range))?;
+        let robot = robot_from_toml(robot_toml, source, meta, margin)?;
+        let default_robot =
+            Arc::new(footprint_state(robot, 1, meta_bounds, cfg.env.goal_tolerance)?);
         Ok(Self {
-            inner: Mutex::new(Inner {
-                dvst,
-                obs: vec![0.0; obs_dim(lidar.beams)],
-                footprint_version: 1,
-            }),
+            policy: Mutex::new(PolicySlot { policy, meta_obs: vec![0.0; obs_dim(lidar.beams)] }),
+            robots: Mutex::new(RobotTable::new(DEFAULT_MAX_ROBOTS, DEFAULT_ROBOT_IDLE)),
+            default_robot,
+            next_version: AtomicU64::new(2),
             beams: lidar.beams,
             fov_deg: lidar.fov_deg,
             scan_range,
             control_period_s: cfg.env.dt,
+            goal_tolerance: cfg.env.goal_tolerance,
+            meta_bounds,
             meta,
             margin,
             model,
@@ -215,7 +315,16 @@ impl<P: NavPolicy> DvstController<P> {
         })
     }
 
-    /// Scan length a request must carry.
+    /// At most `max_robots` robots at once, each dropped after `idle` without a call.
+    pub fn with_robot_limits(self, max_robots: usize, idle: Duration) -> anyhow::Result<Self> {
+        anyhow::ensure!(max_robots > 0, "a controller drives at least one robot");
+        anyhow::ensure!(!idle.is_zero(), "the robot idle time must be above 0 s");
+        *self.robots.lock().unwrap_or_else(PoisonError::into_inner) =
+            RobotTable::new(max_robots, idle);
+        Ok(self)
+    }
+
+    /// Scan length the meta form of a request must carry.
     pub fn beams(&self) -> usize {
         self.beams
     }
@@ -229,30 +338,83 @@ impl<P: NavPolicy> DvstController<P> {
     /// before the policy sees it.
     pub fn act(&self, input: &RobotInput) -> Result<Command, ControllerError> {
         self.check(input)?;
-        let mut inner = self.lock();
-        let Inner { dvst, obs, footprint_version } = &mut *inner;
+        let state =
+            self.robots().touch(input.robot_id, Instant::now(), || self.default_robot.clone())?;
+        if let Some(expected) = input.expected_footprint_version
+            && expected != state.version
+        {
+            return Err(ControllerError::FootprintChanged {
+                robot: input.robot_id.to_string(),
+                expected,
+                current: state.version,
+            });
+        }
         let b = self.beams;
-        obs[..b].copy_from_slice(input.scan);
+        let mut obs = vec![0.0f32; obs_dim(b)];
+        let filled_beams = match input.scan {
+            Scan::Meta(scan) => {
+                obs[..b].copy_from_slice(scan);
+                0
+            }
+            Scan::Laser(scan) => {
+                let layout = BeamLayout::new(b, self.fov_deg);
+                laser_scan::resample(&scan, &state.robot.lidar, layout, &mut obs[..b]).map_err(
+                    |e| ControllerError::invalid(format!("laser_scan.{}", e.field), e.reason),
+                )?
+            }
+        };
+        let command = |v, omega, arrived| Command {
+            v,
+            omega,
+            arrived,
+            goal_tolerance: state.goal_tolerance,
+            filled_beams,
+            mu: state.mu,
+            footprint: state.robot.footprint.name.clone(),
+            footprint_version: state.version,
+        };
+        self.commands.fetch_add(1, Ordering::Relaxed);
+        if input.goal_distance <= state.goal_tolerance {
+            return Ok(command(0.0, 0.0, true));
+        }
         obs[b + GOAL_DISTANCE] = input.goal_distance as f32;
         obs[b + GOAL_ANGLE] = wrap_angle(input.goal_angle) as f32;
         obs[b + LINEAR_VELOCITY] = input.v as f32;
         obs[b + ANGULAR_VELOCITY] = input.omega as f32;
-        let (v, omega) = dvst.act(obs).map_err(ControllerError::Policy)?;
-        self.commands.fetch_add(1, Ordering::Relaxed);
-        Ok(Command {
-            v,
-            omega,
-            mu: dvst.mu(),
-            footprint: dvst.robot().footprint.name.clone(),
-            footprint_version: *footprint_version,
-        })
+        let (v_m, omega_m) = {
+            let mut slot = self.policy.lock().unwrap_or_else(PoisonError::into_inner);
+            let PolicySlot { policy, meta_obs } = &mut *slot;
+            transfer_observation(&obs, b, state.mu, Some(self.scan_range), meta_obs);
+            policy.act(meta_obs).map_err(|e| {
+                self.commands.fetch_sub(1, Ordering::Relaxed);
+                ControllerError::Policy(e)
+            })?
+        };
+        if !(v_m.is_finite() && omega_m.is_finite()) {
+            self.commands.fetch_sub(1, Ordering::Relaxed);
+            return Err(ControllerError::Policy(anyhow::anyhow!(
+                "the meta policy answered a non-finite command ({v_m}, {omega_m})"
+            )));
+        }
+        let (v, omega) = transfer_policy(v_m, omega_m, state.mu, state.bounds);
+        Ok(command(v, omega, false))
     }
 
-    /// Replaces the robot with the one the footprint file `text` describes (all of it: keys
-    /// the file leaves out take their defaults, as at start-up) and returns it with its new μ.
-    /// A bad file changes nothing.
-    pub fn set_footprint_toml(&self, text: &str) -> Result<FootprintState, ControllerError> {
+    /// Replaces robot `robot_id`'s footprint with the one the footprint file `text` describes
+    /// (all of it: keys the file leaves out take their defaults, as at start-up) and returns
+    /// it with its new μ. A bad file changes nothing.
+    pub fn set_footprint_toml(
+        &self,
+        robot_id: &str,
+        text: &str,
+    ) -> Result<FootprintState, ControllerError> {
         const FIELD: &str = "footprint_toml";
+        check_robot_id(robot_id)?;
+        if text.len() > MAX_FOOTPRINT_TOML {
+            let why =
+                format!("{} bytes; a footprint file has at most {MAX_FOOTPRINT_TOML}", text.len());
+            return Err(ControllerError::invalid(FIELD, why));
+        }
         let robot = robot_from_toml(text, FIELD, self.meta, self.margin).map_err(|e| {
             let reason = match e.downcast::<SpecFileError>() {
                 Ok(e) => {
@@ -265,101 +427,142 @@ impl<P: NavPolicy> DvstController<P> {
             };
             ControllerError::invalid(FIELD, reason)
         })?;
-        let mut inner = self.lock();
-        inner
-            .dvst
-            .set_robot(robot)
+        let version = self.next_version.fetch_add(1, Ordering::Relaxed);
+        let state = footprint_state(robot, version, self.meta_bounds, self.goal_tolerance)
             .map_err(|e| ControllerError::invalid(FIELD, format!("{e:#}")))?;
-        inner.footprint_version += 1;
-        Ok(Self::state(&inner))
+        let state = Arc::new(state);
+        self.robots().set(robot_id, Instant::now(), state.clone())?;
+        Ok((*state).clone())
     }
 
-    /// The current robot.
-    pub fn footprint(&self) -> FootprintState {
-        Self::state(&self.lock())
+    /// Robot `robot_id`'s footprint now (the default for a robot without one).
+    pub fn footprint(&self, robot_id: &str) -> FootprintState {
+        let own = self.robots().get(robot_id, Instant::now());
+        (*own.unwrap_or_else(|| self.default_robot.clone())).clone()
     }
 
-    /// What this controller expects and drives with.
-    pub fn info(&self) -> ControllerInfo {
-        let inner = self.lock();
-        let (v_max, omega_max) = inner.dvst.meta_policy().velocity_bounds();
+    /// What this controller expects and drives with, for robot `robot_id`.
+    pub fn info(&self, robot_id: &str) -> ControllerInfo {
+        let footprint = self.footprint(robot_id);
+        let mut robots = self.robots();
+        let (max_robots, robot_idle) = robots.limits();
         ControllerInfo {
             beams: self.beams,
             fov_deg: self.fov_deg,
             scan_range: self.scan_range,
             control_period_s: self.control_period_s,
-            meta_bounds: VelocityBounds { v_max, omega_max },
-            footprint: Self::state(&inner),
+            meta_bounds: self.meta_bounds,
+            footprint,
             model: self.model.clone(),
             commands: self.commands.load(Ordering::Relaxed),
+            robots: robots.active(Instant::now()),
+            max_robots,
+            robot_idle,
         }
     }
 
-    fn state(inner: &Inner<P>) -> FootprintState {
-        let (v_max, omega_max) = inner.dvst.velocity_bounds();
-        FootprintState {
-            robot: inner.dvst.robot().clone(),
-            mu: inner.dvst.mu(),
-            scaled: inner.dvst.scaled_robot(),
-            bounds: VelocityBounds { v_max, omega_max },
-            version: inner.footprint_version,
-        }
-    }
-
-    /// A panic inside the policy leaves nothing half-changed that a later request could see
-    /// (the observation buffer is rewritten whole every call), so a poisoned lock is used on.
-    fn lock(&self) -> MutexGuard<'_, Inner<P>> {
-        self.inner.lock().unwrap_or_else(PoisonError::into_inner)
+    /// Nothing a panic could leave half-changed sits behind these locks (the table's entries
+    /// are whole snapshots, the observation buffer is rewritten whole every call), so a
+    /// poisoned lock is used on.
+    fn robots(&self) -> MutexGuard<'_, RobotTable<Arc<FootprintState>>> {
+        self.robots.lock().unwrap_or_else(PoisonError::into_inner)
     }
 
     /// Checks every field of a request, in the order of the wire message.
     fn check(&self, input: &RobotInput) -> Result<(), ControllerError> {
-        let n = input.scan.len();
+        match input.scan {
+            Scan::Meta(scan) => self.check_meta_scan(scan)?,
+            Scan::Laser(scan) => scan.validate().map_err(|e| {
+                ControllerError::invalid(format!("laser_scan.{}", e.field), e.reason)
+            })?,
+        }
+        let d = input.goal_distance;
+        if !(d.is_finite() && (0.0..=MAX_RANGE_M).contains(&d)) {
+            return Err(ControllerError::invalid(
+                "goal_distance",
+                format!("must be a distance in [0, {MAX_RANGE_M}] m, got {d}"),
+            ));
+        }
+        for (field, x, limit, unit) in [
+            ("goal_angle", input.goal_angle, MAX_GOAL_ANGLE, "rad"),
+            ("v", input.v, MAX_SPEED, "m/s"),
+            ("omega", input.omega, MAX_SPEED, "rad/s"),
+        ] {
+            if !(x.is_finite() && x.abs() <= limit) {
+                return Err(ControllerError::invalid(
+                    field,
+                    format!("must be finite and within ±{limit} {unit}, got {x}"),
+                ));
+            }
+        }
+        check_robot_id(input.robot_id)
+    }
+
+    fn check_meta_scan(&self, scan: &[f32]) -> Result<(), ControllerError> {
+        let n = scan.len();
         if n != self.beams {
             return Err(ControllerError::invalid(
                 "scan",
-                format!("{n} ranges, the model's LiDAR has {} beams", self.beams),
+                format!(
+                    "{n} ranges, the model's LiDAR has {} beams (send any other scan as \
+                     `laser_scan`)",
+                    self.beams
+                ),
             ));
         }
-        let bad = |r: &f32| !(r.is_finite() && *r >= 0.0);
-        if let Some(i) = input.scan.iter().position(bad) {
-            let r = input.scan[i];
-            let others = input.scan[i + 1..].iter().filter(|r| bad(r)).count();
+        let bad = |r: &f32| !(r.is_finite() && *r >= 0.0 && f64::from(*r) <= MAX_RANGE_M);
+        if let Some(i) = scan.iter().position(bad) {
+            let r = scan[i];
+            let others = scan[i + 1..].iter().filter(|r| bad(r)).count();
             let more = match others {
                 0 => String::new(),
                 k => format!(" ({k} more bad range{} after it)", if k == 1 { "" } else { "s" }),
             };
-            let why = if r.is_finite() {
-                format!("{r} m is negative")
-            } else {
+            let why = if !r.is_finite() {
                 format!(
-                    "{r} is not a range; send range_max ({} m) for a beam with no return",
+                    "{r} is not a range; send range_max ({} m) for a beam with no return, or \
+                     send the scan as `laser_scan`, which reads ±inf and NaN as ROS does",
                     self.scan_range[1]
                 )
+            } else if r < 0.0 {
+                format!("{r} m is negative")
+            } else {
+                format!("{r} m is beyond the longest range accepted, {MAX_RANGE_M} m")
             };
             return Err(ControllerError::invalid(format!("scan[{i}]"), format!("{why}{more}")));
         }
-        let d = input.goal_distance;
-        if !(d.is_finite() && d >= 0.0) {
-            return Err(ControllerError::invalid(
-                "goal_distance",
-                format!("must be a finite distance ≥ 0 m, got {d}"),
-            ));
-        }
-        for (field, x, unit) in [
-            ("goal_angle", input.goal_angle, "rad"),
-            ("v", input.v, "m/s"),
-            ("omega", input.omega, "rad/s"),
-        ] {
-            if !x.is_finite() {
-                return Err(ControllerError::invalid(
-                    field,
-                    format!("must be finite ({unit}), got {x}"),
-                ));
-            }
-        }
         Ok(())
     }
+}
+
+fn check_robot_id(id: &str) -> Result<(), ControllerError> {
+    if id.len() > MAX_ROBOT_ID {
+        let why = format!("{} bytes; a robot id has at most {MAX_ROBOT_ID}", id.len());
+        return Err(ControllerError::invalid("robot_id", why));
+    }
+    Ok(())
+}
+
+/// `robot` as a controller drives it: μ, the scaled robot, its bounds (its own, else
+/// `meta_bounds`), its goal tolerance (the meta agent's `goal_tolerance` times μ).
+fn footprint_state(
+    robot: VariedRobot,
+    version: u64,
+    meta_bounds: VelocityBounds,
+    goal_tolerance: f64,
+) -> anyhow::Result<FootprintState> {
+    robot.validate()?;
+    let bounds = robot.velocity_bounds(meta_bounds);
+    bounds.validate()?;
+    let mu = robot.mu();
+    Ok(FootprintState {
+        mu,
+        scaled: robot.meta.scaled(mu),
+        bounds,
+        goal_tolerance: goal_tolerance * mu,
+        version,
+        robot,
+    })
 }
 
 /// A varied-robot file with the model's meta robot and the forced margin, if any.

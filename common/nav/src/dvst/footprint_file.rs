@@ -1,13 +1,20 @@
 //! [`VariedRobot`]: the dimension-varied robot as a user describes it in a small TOML file:
 //! its footprint (the same `name` and `[[parts]]` as a [`Footprint`] file, so every footprint
 //! file is also a DVST file), optionally its own velocity bounds, a safety margin, and the meta
-//! robot the agent was trained as.
+//! robot the agent was trained as, and where its LiDAR sits ([`SensorSetup`], used when the
+//! robot sends its scan as a `LaserScan`).
 //!
 //! ```toml
 //! name = "cart with cargo"
 //! margin = 0.03            # m, optional (default 0): clearance the scaled robot keeps
 //! v_max = 0.4              # m/s, optional: this robot's own bounds (default: the meta agent's)
 //! omega_max = 1.2          # rad/s, optional
+//!
+//! [lidar]                  # optional: where the LiDAR sits (default: on the axle centre)
+//! x = 0.12                 # m ahead of the axle centre
+//! y = 0.0                  # m to the left
+//! yaw = 0.0                # rad, left positive
+//! uncovered_range = 0.0    # m read by meta beams the sensor does not see (0: blocked)
 //!
 //! [meta]                   # optional; default: the circle of radius 0.2 m
 //! shape = "rectangle"      # or: shape = "circle", radius = 0.2
@@ -29,6 +36,7 @@
 //! The parts are the whole varied robot (design §5: DVR = MR ∪ cargo), body included: a
 //! robot smaller than the meta robot is a file with only its own, smaller body (μ < 1).
 
+use super::laser_scan::SensorSetup;
 use super::scale::{MetaRobot, covering_scale};
 use super::transfer::VelocityBounds;
 use dvnav_sim::room_file::{line_of, parse_toml, read_spec_file};
@@ -51,6 +59,8 @@ pub struct VariedRobot {
     pub v_max: Option<f64>,
     /// This robot's angular speed bound (rad/s); `None`: the meta agent's.
     pub omega_max: Option<f64>,
+    /// Its LiDAR's mounting and what unseen beams read.
+    pub lidar: SensorSetup,
 }
 
 impl VariedRobot {
@@ -62,6 +72,7 @@ impl VariedRobot {
             margin: 0.0,
             v_max: None,
             omega_max: None,
+            lidar: SensorSetup::default(),
         }
     }
 
@@ -87,6 +98,7 @@ impl VariedRobot {
     pub fn validate(&self) -> anyhow::Result<()> {
         self.footprint.validate()?;
         self.meta.validate().map_err(|e| anyhow::anyhow!("meta: {e}"))?;
+        self.lidar.validate().map_err(|e| anyhow::anyhow!("lidar.{e}"))?;
         anyhow::ensure!(
             self.margin.is_finite() && self.margin >= 0.0,
             "margin must be a length ≥ 0 m, got {}",
@@ -114,6 +126,19 @@ impl VariedRobot {
             omega_max: Option<Spanned<f64>>,
             /// Read as a value first, so that a bad meta robot is reported under `meta`.
             meta: Option<Spanned<toml::Value>>,
+            lidar: Option<Spanned<Lidar>>,
+        }
+        #[derive(Deserialize)]
+        #[serde(deny_unknown_fields)]
+        struct Lidar {
+            #[serde(default)]
+            x: f64,
+            #[serde(default)]
+            y: f64,
+            #[serde(default)]
+            yaw: f64,
+            #[serde(default)]
+            uncovered_range: f64,
         }
         let file: File = parse_toml(text, source)?;
         let err = |span: std::ops::Range<usize>, key: &str, reason: String| SpecFileError {
@@ -147,7 +172,18 @@ impl VariedRobot {
             }
             b => Ok(b.map(Spanned::into_inner)),
         };
+        let lidar = match file.lidar {
+            Some(l) => {
+                let span = l.span();
+                let Lidar { x, y, yaw, uncovered_range } = l.into_inner();
+                let setup = SensorSetup { x, y, yaw, uncovered_range };
+                setup.validate().map_err(|e| err(span, &format!("lidar.{}", e.field), e.reason))?;
+                setup
+            }
+            None => SensorSetup::default(),
+        };
         Ok(VariedRobot {
+            lidar,
             footprint: Footprint { name: file.name, parts },
             meta,
             margin,
@@ -188,6 +224,8 @@ mod tests {
         assert_eq!(r.footprint.name, "cart with cargo");
         assert_eq!(r.footprint.parts.len(), 2);
         assert_eq!((r.margin, r.v_max, r.omega_max), (0.03, Some(0.4), Some(1.2)));
+        let lidar = SensorSetup { x: 0.12, ..SensorSetup::default() };
+        assert_eq!(r.lidar, lidar);
         assert_eq!(r.meta, MetaRobot::Rectangle { front: 0.25, back: 0.15, left: 0.2, right: 0.2 });
         // The cargo reaches 0.65 m behind the axle: (0.65 + 0.03) / 0.15.
         assert!((r.mu() - 0.68 / 0.15).abs() < 1e-12, "{}", r.mu());
@@ -219,27 +257,35 @@ mod tests {
         };
         check(base.replace("margin = 0.03", "margin = -0.03"), Some(2), "margin", "≥ 0");
         check(base.replace("v_max = 0.4", "v_max = 0.0"), Some(3), "v_max", "positive");
-        check(base.replace("back = 0.15", "back = -0.15"), Some(6), "meta", "`back`");
+        check(base.replace("back = 0.15", "back = -0.15"), Some(12), "meta", "`back`");
         check(
             base.replace("half_extents = [0.25", "half_extents = [-0.25"),
-            Some(17),
+            Some(23),
             "parts[1]",
             "half extents",
         );
         check(
             base.replace("shape = \"rectangle\"", "shape = \"hexagon\""),
-            Some(6),
+            Some(12),
             "meta",
             "hexagon",
         );
         check(base.replace("margin", "margn"), Some(2), "", "unknown field `margn`");
-        check(base.replace("front = 0.25", "front = \"far\""), Some(6), "meta", "expected f64");
+        check(base.replace("front = 0.25", "front = \"far\""), Some(12), "meta", "expected f64");
         check(
             base.replace("front = 0.25", "radius = 0.25"),
-            Some(6),
+            Some(12),
             "meta",
             "unknown field `radius`",
         );
+        check(base.replace("yaw = 0.0", "yaw = 1e9"), Some(6), "lidar.yaw", "±4π");
+        check(
+            base.replace("uncovered_range = 0.0", "uncovered_range = -2.0"),
+            Some(6),
+            "lidar.uncovered_range",
+            "range",
+        );
+        check(base.replace("x = 0.12", "z = 0.12"), Some(7), "", "unknown field `z`");
         let e = VariedRobot::load(Path::new("/nonexistent/robot.toml")).unwrap_err();
         assert!(e.to_string().starts_with("/nonexistent/robot.toml: cannot read"), "{e}");
     }

@@ -10,8 +10,12 @@
 //!   arc scaled by μ, shortened to the varied robot's bounds with its curvature kept).
 //! - [`agent`]: [`Dvst`], any [`crate::policy::NavPolicy`] wrapped for the varied robot, itself
 //!   a `NavPolicy`; the footprint can change at run time.
-//! - [`controller`]: [`DvstController`], a meta agent driving one robot for many callers
-//!   (`dvnav serve`): checked requests, atomic footprint changes.
+//! - [`laser_scan`]: any LiDAR's scan (ROS `LaserScan`, REP 117), mounted anywhere on the
+//!   robot, resampled conservatively to the meta agent's beams.
+//! - [`robots`]: [`robots::RobotTable`], robots by id, bounded, expiring when silent.
+//! - [`controller`]: [`DvstController`], a meta agent driving many robots for many callers
+//!   (`dvnav serve`): checked and bounded requests, per-robot footprints changed atomically,
+//!   arrival.
 //!
 //! ```
 //! use dvnav_nav::dvst::{VariedRobot, transfer_policy, VelocityBounds};
@@ -31,11 +35,14 @@
 pub mod agent;
 pub mod controller;
 pub mod footprint_file;
+pub mod laser_scan;
+pub mod robots;
 pub mod scale;
 pub mod transfer;
 
 pub use agent::Dvst;
 pub use controller::DvstController;
 pub use footprint_file::VariedRobot;
+pub use laser_scan::{BeamLayout, LaserScan, SensorSetup};
 pub use scale::{MetaRobot, Reach, covering_scale};
 pub use transfer::{VelocityBounds, transfer_observation, transfer_policy};

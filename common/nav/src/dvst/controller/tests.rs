@@ -1,4 +1,5 @@
 use super::*;
+use crate::dvst::Dvst;
 use crate::policy::MetaAgent;
 use std::path::Path;
 use std::sync::Arc;
@@ -59,7 +60,7 @@ fn commands_are_those_of_the_meta_agent_through_dvst() {
     let ctl =
         DvstController::new(agent, &cfg, model_id(), &text, "paper-medium.toml", None).unwrap();
     assert_eq!(ctl.beams(), 540);
-    let info = ctl.info();
+    let info = ctl.info("");
     assert!((info.footprint.mu - 1.85).abs() < 1e-12, "{info:?}");
     assert_eq!(info.footprint.version, 1);
     assert_eq!(info.scan_range, [0.02, 10.0]);
@@ -73,19 +74,19 @@ fn commands_are_those_of_the_meta_agent_through_dvst() {
     let mut moved = 0;
     for k in 0..20 {
         let s = scan(540, k);
-        let (d, a, v, w) = (0.3 + 0.4 * k as f64, -1.5 + 0.15 * k as f64, 0.02 * k as f64, 0.1);
+        let (d, a, v, w) = (0.5 + 0.4 * k as f64, -1.5 + 0.15 * k as f64, 0.02 * k as f64, 0.1);
         let mut obs = s.clone();
         obs.extend([d as f32, a as f32, v as f32, w as f32]);
         let want = direct.act(&obs).unwrap();
-        let input = RobotInput { scan: &s, goal_distance: d, goal_angle: a, v, omega: w };
+        let input = RobotInput::new(Scan::Meta(&s), d, a, v, w);
         let got = ctl.act(&input).unwrap();
         assert_eq!((got.v, got.omega), want, "call {k}: bit for bit");
-        assert_eq!((got.mu, got.footprint_version), (ctl.info().footprint.mu, 1));
+        assert_eq!((got.mu, got.footprint_version), (ctl.info("").footprint.mu, 1));
         assert_eq!(got.footprint, "paper medium robot");
         moved += (got.v.abs() > 1e-3 || got.omega.abs() > 1e-3) as usize;
     }
     assert!(moved > 10, "the agent drives: {moved} of 20 commands move the robot");
-    assert_eq!(ctl.info().commands, 20);
+    assert_eq!(ctl.info("").commands, 20);
 }
 
 #[test]
@@ -93,7 +94,7 @@ fn malformed_requests_name_the_field_and_never_reach_the_policy() {
     let (ctl, calls) =
         counter_controller("[[parts]]\nshape = \"circle\"\ncenter = [0, 0]\nradius = 0.2\n");
     let good = [1.0f32, 2.0, 3.0];
-    let ok = RobotInput { scan: &good, goal_distance: 1.0, goal_angle: 0.5, v: 0.1, omega: 0.0 };
+    let ok = RobotInput::new(Scan::Meta(&good), 1.0, 0.5, 0.1, 0.0);
     assert_eq!(ctl.act(&ok).unwrap().v, 0.4);
     assert_eq!(calls.load(Ordering::SeqCst), 1);
 
@@ -101,18 +102,18 @@ fn malformed_requests_name_the_field_and_never_reach_the_policy() {
         Err(ControllerError::InvalidArgument { field, reason }) => (field, reason),
         other => panic!("not refused: {other:?}"),
     };
-    let (f, why) = field(RobotInput { scan: &good[..2], ..ok });
+    let (f, why) = field(RobotInput { scan: Scan::Meta(&good[..2]), ..ok });
     assert_eq!(f, "scan");
     assert!(why.contains("2 ranges") && why.contains("3 beams"), "{why}");
-    let (f, why) = field(RobotInput { scan: &[1.0, 2.0, 3.0, 4.0], ..ok });
+    let (f, why) = field(RobotInput { scan: Scan::Meta(&[1.0, 2.0, 3.0, 4.0]), ..ok });
     assert_eq!(f, "scan", "{why}");
-    let (f, why) = field(RobotInput { scan: &[1.0, f32::NAN, f32::NAN], ..ok });
+    let (f, why) = field(RobotInput { scan: Scan::Meta(&[1.0, f32::NAN, f32::NAN]), ..ok });
     assert_eq!(f, "scan[1]");
     assert!(why.contains("NaN") && why.contains("1 more bad range after it"), "{why}");
-    let (f, why) = field(RobotInput { scan: &[f32::INFINITY, 1.0, 1.0], ..ok });
+    let (f, why) = field(RobotInput { scan: Scan::Meta(&[f32::INFINITY, 1.0, 1.0]), ..ok });
     assert_eq!(f, "scan[0]");
     assert!(why.contains("range_max (10 m)"), "{why}");
-    let (f, why) = field(RobotInput { scan: &[1.0, 1.0, -0.1], ..ok });
+    let (f, why) = field(RobotInput { scan: Scan::Meta(&[1.0, 1.0, -0.1]), ..ok });
     assert_eq!(f, "scan[2]");
     assert!(why.contains("negative"), "{why}");
     for (input, name) in [
@@ -128,7 +129,7 @@ fn malformed_requests_name_the_field_and_never_reach_the_policy() {
         assert!(e.to_string().starts_with(&format!("`{name}`: ")), "{e}");
     }
     assert_eq!(calls.load(Ordering::SeqCst), 1, "no malformed request reached the policy");
-    assert_eq!(ctl.info().commands, 1);
+    assert_eq!(ctl.info("").commands, 1);
 
     // A goal angle outside [−π, π] is the same direction, wrapped.
     let turned = ctl.act(&RobotInput { goal_angle: 0.5 + 4.0 * PI, ..ok }).unwrap();
@@ -159,12 +160,12 @@ fn a_new_footprint_changes_mu_and_a_bad_one_changes_nothing() {
         DvstController::new(agent, &cfg, model_id(), &footprint("small-0.15.toml"), "s", None)
             .unwrap();
     let s = scan(540, 3);
-    let input = RobotInput { scan: &s, goal_distance: 2.0, goal_angle: 0.4, v: 0.1, omega: 0.0 };
+    let input = RobotInput::new(Scan::Meta(&s), 2.0, 0.4, 0.1, 0.0);
     let before = ctl.act(&input).unwrap();
     assert!((before.mu - 0.75).abs() < 1e-12 && before.footprint_version == 1, "{before:?}");
 
     // It picks up cargo: the 0.5 m circle.
-    let state = ctl.set_footprint_toml(&footprint("circle-0.5.toml")).unwrap();
+    let state = ctl.set_footprint_toml("", &footprint("circle-0.5.toml")).unwrap();
     assert!((state.mu - 2.5).abs() < 1e-12, "{state:?}");
     assert_eq!((state.version, state.scaled), (2, MetaRobot::Circle { radius: 0.5 }));
     assert_eq!(state.robot.footprint.name, "circle r=0.5");
@@ -174,7 +175,7 @@ fn a_new_footprint_changes_mu_and_a_bad_one_changes_nothing() {
     assert_ne!((after.v, after.omega), (before.v, before.omega), "the command follows μ");
 
     // Bad files: refused with the field and the line, and nothing changes.
-    let refused = |text: &str| match ctl.set_footprint_toml(text) {
+    let refused = |text: &str| match ctl.set_footprint_toml("", text) {
         Err(ControllerError::InvalidArgument { field, reason }) => {
             assert_eq!(field, "footprint_toml");
             reason
@@ -198,14 +199,14 @@ fn a_new_footprint_changes_mu_and_a_bad_one_changes_nothing() {
         )),
     );
     assert!(why.contains("`meta`") && why.contains("trained as a circle r = 0.200 m"), "{why}");
-    let now = ctl.footprint();
+    let now = ctl.footprint("");
     assert_eq!((now.version, now.robot), (2, state.robot.clone()));
     assert_eq!(ctl.act(&input).unwrap(), after, "the same command as before the refusals");
 
     // The model's own meta robot, named in the file, is accepted; the file's margin counts.
     let named = footprint("paper-medium.toml")
         .replace("margin = 0.03", "margin = 0.03\n[meta]\nshape = \"circle\"\nradius = 0.2\n");
-    let state = ctl.set_footprint_toml(&named).unwrap();
+    let state = ctl.set_footprint_toml("", &named).unwrap();
     assert!((state.mu - 1.85).abs() < 1e-12 && state.version == 3, "{state:?}");
 }
 
@@ -219,7 +220,7 @@ fn a_forced_margin_holds_for_every_footprint() {
     );
     let text = "margin = 0.2\n[[parts]]\nshape = \"circle\"\ncenter = [0, 0]\nradius = 0.3\n";
     let (own, _) = counter_controller(text);
-    assert!((own.footprint().mu - 2.5).abs() < 1e-12, "the file's margin: (0.3 + 0.2) / 0.2");
+    assert!((own.footprint("").mu - 2.5).abs() < 1e-12, "the file's margin: (0.3 + 0.2) / 0.2");
     let forced = DvstController::new(
         Counter::default(),
         &three_beam_config(),
@@ -229,8 +230,8 @@ fn a_forced_margin_holds_for_every_footprint() {
         Some(0.1),
     )
     .unwrap();
-    assert!((forced.footprint().mu - 2.0).abs() < 1e-12, "--margin 0.1: (0.3 + 0.1) / 0.2");
-    let state = forced.set_footprint_toml(&text.replace("0.3", "0.5")).unwrap();
+    assert!((forced.footprint("").mu - 2.0).abs() < 1e-12, "--margin 0.1: (0.3 + 0.1) / 0.2");
+    let state = forced.set_footprint_toml("", &text.replace("0.3", "0.5")).unwrap();
     assert!((state.mu - 3.0).abs() < 1e-12 && state.robot.margin == 0.1, "{state:?}");
     assert!(
         DvstController::new(
@@ -259,7 +260,7 @@ fn a_model_trained_as_a_rectangle_gives_its_meta_robot() {
     let text = "[[parts]]\nshape = \"circle\"\ncenter = [0, 0]\nradius = 0.3\n";
     let ctl = DvstController::new(Counter::default(), &cfg, model_id(), text, "r", None).unwrap();
     // The rectangle reaches 0.25 ahead, 0.15 behind, 0.15 to each side: μ = 0.3 / 0.15.
-    let info = ctl.info();
+    let info = ctl.info("");
     assert!((info.footprint.mu - 2.0).abs() < 1e-12, "{info:?}");
     assert!(matches!(info.footprint.robot.meta, MetaRobot::Rectangle { .. }));
 }
@@ -276,7 +277,7 @@ fn footprint_changes_are_atomic_for_concurrent_commands() {
         let ctl = ctl.clone();
         std::thread::spawn(move || {
             for k in 0..200 {
-                let v = ctl.set_footprint_toml(if k % 2 == 0 { large } else { small }).unwrap();
+                let v = ctl.set_footprint_toml("", if k % 2 == 0 { large } else { small }).unwrap();
                 assert_eq!(v.version, k + 2);
             }
         })
@@ -286,13 +287,7 @@ fn footprint_changes_are_atomic_for_concurrent_commands() {
             let ctl = ctl.clone();
             std::thread::spawn(move || {
                 let s = [1.0f32, 1.0, 1.0];
-                let input = RobotInput {
-                    scan: &s,
-                    goal_distance: 1.0,
-                    goal_angle: 0.0,
-                    v: 0.0,
-                    omega: 0.0,
-                };
+                let input = RobotInput::new(Scan::Meta(&s), 1.0, 0.0, 0.0, 0.0);
                 for _ in 0..500 {
                     let c = ctl.act(&input).unwrap();
                     // Odd versions are the small robot (μ = 0.5), even ones the large (μ = 2).
@@ -309,6 +304,155 @@ fn footprint_changes_are_atomic_for_concurrent_commands() {
     for r in readers {
         r.join().unwrap();
     }
-    assert_eq!(ctl.footprint().version, 201);
-    assert_eq!(ctl.info().commands, 1500);
+    assert_eq!(ctl.footprint("").version, 201);
+    assert_eq!(ctl.info("").commands, 1500);
+}
+
+#[test]
+fn within_the_scaled_goal_tolerance_the_robot_has_arrived_and_stops() {
+    // The 0.5 m circle: μ = 2.5, the meta agent's 0.2 m tolerance becomes 0.5 m.
+    let (ctl, calls) = counter_controller(&footprint("circle-0.5.toml"));
+    assert!((ctl.footprint("").goal_tolerance - 0.5).abs() < 1e-12);
+    let s = [1.0f32; 3];
+    let near = RobotInput::new(Scan::Meta(&s), 0.49, 0.3, 0.2, 0.1);
+    let c = ctl.act(&near).unwrap();
+    assert_eq!((c.v, c.omega, c.arrived), (0.0, 0.0, true), "{c:?}");
+    assert_eq!(calls.load(Ordering::SeqCst), 0, "no policy call once arrived");
+    let c = ctl.act(&RobotInput { goal_distance: 0.51, ..near }).unwrap();
+    assert!(!c.arrived && c.v > 0.0, "{c:?}");
+    let c = ctl.act(&RobotInput { goal_distance: 0.0, ..near }).unwrap();
+    assert_eq!((c.v, c.omega, c.arrived), (0.0, 0.0, true), "at the goal itself");
+}
+
+#[test]
+fn each_robot_drives_with_its_own_footprint_and_expires_when_silent() {
+    let (ctl, _) = counter_controller(&footprint("small-0.15.toml"));
+    let ctl = ctl.with_robot_limits(2, std::time::Duration::from_millis(300)).unwrap();
+    let s = [1.0f32; 3];
+    let of = |id: &'static str| RobotInput {
+        robot_id: id,
+        ..RobotInput::new(Scan::Meta(&s), 2.0, 0.0, 0.0, 0.0)
+    };
+    let big = ctl.set_footprint_toml("big", &footprint("circle-0.5.toml")).unwrap();
+    assert!((big.mu - 2.5).abs() < 1e-12 && big.version == 2, "{big:?}");
+    let (b, other) = (ctl.act(&of("big")).unwrap(), ctl.act(&of("other")).unwrap());
+    assert_eq!((b.footprint_version, b.footprint.as_str()), (2, "circle r=0.5"));
+    assert!((other.mu - 0.75).abs() < 1e-12 && other.footprint_version == 1, "the default");
+    assert!(b.v > other.v, "the bigger robot drives faster: {b:?} {other:?}");
+    assert_eq!(ctl.info("big").footprint.version, 2);
+    assert_eq!(ctl.info("nobody").footprint.version, 1);
+    assert_eq!((ctl.info("").robots, ctl.info("").max_robots), (2, 2));
+
+    // A third robot while both are active: refused, and nothing of theirs changed.
+    match ctl.act(&of("third")) {
+        Err(ControllerError::TooManyRobots(full)) => assert_eq!(full.capacity, 2),
+        other => panic!("not refused: {other:?}"),
+    }
+    assert!(ctl.set_footprint_toml("third", &footprint("circle-0.5.toml")).is_err());
+
+    // A robot that expects the footprint it set is refused once another replaced it.
+    let expecting = RobotInput { expected_footprint_version: Some(2), ..of("big") };
+    assert_eq!(ctl.act(&expecting).unwrap().footprint_version, 2);
+    let again = ctl.set_footprint_toml("big", &footprint("circle-0.5.toml")).unwrap();
+    assert!(again.version > 2, "a new version, never used before: {again:?}");
+    let v = again.version;
+    match ctl.act(&expecting) {
+        Err(e @ ControllerError::FootprintChanged { expected: 2, .. }) => {
+            assert!(e.to_string().contains("SetFootprint"), "{e}");
+            assert!(e.to_string().contains(&format!("version {v}")), "{e}");
+        }
+        other => panic!("not refused: {other:?}"),
+    }
+
+    // Silent past the idle time: `big` drives with the default again, and a robot expecting
+    // its own footprint learns it is gone rather than being driven as a smaller robot.
+    std::thread::sleep(std::time::Duration::from_millis(350));
+    assert_eq!(ctl.info("").robots, 0);
+    let expecting = RobotInput { expected_footprint_version: Some(v), ..of("big") };
+    assert!(matches!(
+        ctl.act(&expecting),
+        Err(ControllerError::FootprintChanged { current: 1, .. })
+    ));
+    assert_eq!(ctl.act(&of("big")).unwrap().footprint_version, 1);
+    assert!(ctl.with_robot_limits_checked().is_err());
+}
+
+impl DvstController<Counter> {
+    fn with_robot_limits_checked(self) -> anyhow::Result<Self> {
+        self.with_robot_limits(0, std::time::Duration::from_secs(1))
+    }
+}
+
+#[test]
+fn huge_values_are_refused_as_the_caller_s_not_the_policy_s() {
+    let (ctl, calls) = counter_controller(&footprint("small-0.15.toml"));
+    let s = [1.0f32; 3];
+    let ok = RobotInput::new(Scan::Meta(&s), 2.0, 0.0, 0.0, 0.0);
+    let field = |input: RobotInput| match ctl.act(&input) {
+        Err(ControllerError::InvalidArgument { field, .. }) => field,
+        other => panic!("not refused: {other:?}"),
+    };
+    assert_eq!(field(RobotInput { goal_distance: 1e39, ..ok }), "goal_distance");
+    assert_eq!(field(RobotInput { v: 1e308, ..ok }), "v");
+    assert_eq!(field(RobotInput { omega: -1e10, ..ok }), "omega");
+    assert_eq!(field(RobotInput { goal_angle: 1e300, ..ok }), "goal_angle");
+    assert_eq!(field(RobotInput { scan: Scan::Meta(&[1.0, 3e38, 1.0]), ..ok }), "scan[1]");
+    let long = "r".repeat(MAX_ROBOT_ID + 1);
+    assert_eq!(field(RobotInput { robot_id: &long, ..ok }), "robot_id");
+    let scan = LaserScan {
+        angle_min: -1.0,
+        angle_increment: 0.5,
+        range_min: 0.1,
+        range_max: 1e39,
+        ranges: &[1.0; 5],
+    };
+    assert_eq!(field(RobotInput { scan: Scan::Laser(scan), ..ok }), "laser_scan.range_max");
+    assert_eq!(calls.load(Ordering::SeqCst), 0);
+    let huge = "#".repeat(MAX_FOOTPRINT_TOML + 1);
+    assert!(matches!(
+        ctl.set_footprint_toml("", &huge),
+        Err(ControllerError::InvalidArgument { field, .. }) if field == "footprint_toml"
+    ));
+}
+
+#[test]
+fn a_laser_scan_drives_the_agent_like_the_same_scan_in_its_own_layout() {
+    let (agent, cfg) = MetaAgent::load(Path::new(MODEL)).unwrap();
+    let ctl =
+        DvstController::new(agent, &cfg, model_id(), &footprint("paper-medium.toml"), "p", None)
+            .unwrap();
+    // A Hokuyo UTM-30LX: 1,081 readings 0.25° apart, over the meta agent's 270°.
+    let meta = scan(540, 4);
+    let hokuyo: Vec<f32> = (0..1081).map(|j| meta[(j / 2).min(539)]).collect();
+    let laser = LaserScan {
+        angle_min: -135f64.to_radians(),
+        angle_increment: 0.25f64.to_radians(),
+        range_min: 0.02,
+        range_max: 30.0,
+        ranges: &hokuyo,
+    };
+    let mut resampled = vec![0.0; 540];
+    let layout = BeamLayout::new(540, 270.0);
+    let filled = laser_scan::resample(&laser, &Default::default(), layout, &mut resampled).unwrap();
+    assert_eq!(filled, 0);
+    let by_laser = ctl.act(&RobotInput::new(Scan::Laser(laser), 2.0, 0.4, 0.1, 0.0)).unwrap();
+    let by_meta = ctl.act(&RobotInput::new(Scan::Meta(&resampled), 2.0, 0.4, 0.1, 0.0)).unwrap();
+    assert_eq!((by_laser.v, by_laser.omega), (by_meta.v, by_meta.omega));
+    assert_eq!(by_laser.filled_beams, 0);
+
+    // A 180° sensor: 178 meta beams unseen, reported.
+    let front: Vec<f32> = vec![5.0; 721];
+    let narrow = LaserScan { angle_min: -PI / 2.0, ranges: &front, ..laser };
+    let c = ctl.act(&RobotInput::new(Scan::Laser(narrow), 2.0, 0.4, 0.1, 0.0)).unwrap();
+    assert_eq!(c.filled_beams, 178);
+    // +inf readings (no return) are accepted in this form.
+    let open = vec![f32::INFINITY; 1081];
+    let c = ctl.act(&RobotInput::new(
+        Scan::Laser(LaserScan { ranges: &open, ..laser }),
+        2.0,
+        0.0,
+        0.0,
+        0.0,
+    ));
+    assert!(c.unwrap().v > 0.0);
 }

@@ -1,6 +1,7 @@
-//! `dvnav serve`: the DVST controller as a gRPC service (`dvnav.controller.v1.Controller`). A
-//! robot calls `Act` each control cycle with its scan, goal and velocity and gets (v, ω) back
-//! from the meta agent through DVST; `SetFootprint` changes its footprint at run time.
+//! `dvnav serve`: the DVST controller as a gRPC service (`dvnav.controller.v1.Controller`).
+//! Robots call `Act` each control cycle with their scan (the meta agent's layout or any
+//! LaserScan), goal and velocity and get (v, ω) back from the meta agent through DVST, and
+//! `arrived` within the goal tolerance; `SetFootprint` sets one robot's footprint at run time.
 //!
 //! The service only translates: wire messages into [`RobotInput`] and footprint text, calls
 //! [`DvstController`], and maps [`ControllerError`] to status codes in one place
@@ -8,8 +9,10 @@
 //! so tests and `dvnav bench serve` run it on `127.0.0.1:0` and stop it through a oneshot.
 
 use clap::Args;
+use dvnav_nav::dvst::LaserScan;
 use dvnav_nav::dvst::controller::{
-    Command, ControllerError, ControllerInfo, DvstController, FootprintState, ModelId, RobotInput,
+    Command, ControllerError, ControllerInfo, DEFAULT_MAX_ROBOTS, DEFAULT_ROBOT_IDLE,
+    DvstController, FootprintState, ModelId, RobotInput, Scan,
 };
 use dvnav_nav::policy::MetaAgent;
 use dvnav_proto::controller::v1 as pb;
@@ -18,7 +21,7 @@ use std::future::Future;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 use tonic::{Request, Response, Status};
 
 /// `dvnav serve`.
@@ -47,12 +50,29 @@ pub struct ServeArgs {
     /// Safety margin (m) for every footprint, replacing the files' own `margin`.
     #[arg(long)]
     margin: Option<f64>,
+    /// Robots this server drives at once (each with its own footprint, by `robot_id`); a new
+    /// robot beyond them is refused with RESOURCE_EXHAUSTED until one falls silent.
+    #[arg(long, default_value_t = DEFAULT_MAX_ROBOTS)]
+    max_robots: usize,
+    /// Seconds a robot may be silent before it is forgotten (its footprint with it: it then
+    /// drives with the default footprint, or is refused if it sends
+    /// `expected_footprint_version`).
+    #[arg(long, default_value_t = DEFAULT_ROBOT_IDLE.as_secs_f64())]
+    robot_idle_s: f64,
 }
 
 /// Runs `dvnav serve` until Ctrl-C or SIGTERM.
 pub fn run(args: ServeArgs) -> anyhow::Result<ExitCode> {
     single_candle_thread();
-    let ctl = Arc::new(load_controller(&args.checkpoint, &args.footprint, args.margin)?);
+    anyhow::ensure!(
+        args.robot_idle_s.is_finite() && args.robot_idle_s > 0.0 && args.robot_idle_s <= 1e7,
+        "--robot-idle-s must be a positive number of seconds, got {}",
+        args.robot_idle_s
+    );
+    let ctl = load_controller(&args.checkpoint, &args.footprint, args.margin)?
+        .with_robot_limits(args.max_robots, Duration::from_secs_f64(args.robot_idle_s))
+        .map_err(|e| anyhow::anyhow!("--max-robots / --robot-idle-s: {e:#}"))?;
+    let ctl = Arc::new(ctl);
     let token = super::read_token(args.token_file.as_deref())?;
     let tls = args.tls.load()?;
     super::runtime()?.block_on(async move {
@@ -60,7 +80,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<ExitCode> {
             .await
             .map_err(|e| anyhow::anyhow!("cannot listen on {}: {e}", args.listen))?;
         let addr = listener.local_addr()?;
-        let info = ctl.info();
+        let info = ctl.info("");
         let fp = &info.footprint;
         tracing::info!(
             %addr,
@@ -72,6 +92,8 @@ pub fn run(args: ServeArgs) -> anyhow::Result<ExitCode> {
             v_max = fp.bounds.v_max,
             omega_max = fp.bounds.omega_max,
             beams = info.beams,
+            max_robots = info.max_robots,
+            robot_idle_s = info.robot_idle.as_secs_f64(),
             token = token.is_some(),
             tls = tls.is_some(),
             "controller listening"
@@ -80,14 +102,14 @@ pub fn run(args: ServeArgs) -> anyhow::Result<ExitCode> {
             write_addr_file(f, addr)?;
         }
         serve(listener, super::shutdown_signal(), ctl.clone(), token, tls).await?;
-        tracing::info!(commands = ctl.info().commands, "controller stopped");
+        tracing::info!(commands = ctl.info("").commands, "controller stopped");
         Ok(ExitCode::SUCCESS)
     })
 }
 
 /// Batch-1 inference is small; candle's spinning thread pool would only add latency and take
 /// cores from the robot's other work. Set before any candle use; no other thread runs yet.
-fn single_candle_thread() {
+pub(super) fn single_candle_thread() {
     if std::env::var_os("CANDLE_NUM_THREADS").is_none() {
         // SAFETY: called before the runtime or any other thread starts.
         unsafe { std::env::set_var("CANDLE_NUM_THREADS", "1") };
@@ -176,13 +198,51 @@ pub async fn serve(
 }
 
 /// The one place domain errors become status codes: a malformed request is the caller's
-/// (`INVALID_ARGUMENT`, the message names the field), a failing policy the server's.
+/// (`INVALID_ARGUMENT`, the message names the field), a full server a resource
+/// (`RESOURCE_EXHAUSTED`: retry later), a footprint other than the one expected the robot's
+/// state (`FAILED_PRECONDITION`: set it again), a failing policy the server's (`INTERNAL`).
 fn status(e: ControllerError) -> Status {
     let msg = e.to_string();
     match e {
         ControllerError::InvalidArgument { .. } => Status::invalid_argument(msg),
+        ControllerError::TooManyRobots(_) => Status::resource_exhausted(msg),
+        ControllerError::FootprintChanged { .. } => Status::failed_precondition(msg),
         ControllerError::Policy(_) => Status::internal(msg),
     }
+}
+
+/// A request's scan: the meta form, or the LaserScan, not both.
+fn scan_of(r: &pb::ActRequest) -> Result<Scan<'_>, Status> {
+    match &r.laser_scan {
+        None => Ok(Scan::Meta(&r.scan)),
+        Some(_) if !r.scan.is_empty() => Err(status(ControllerError::InvalidArgument {
+            field: "laser_scan".into(),
+            reason: "send the scan once: as `scan` (the meta agent's layout) or as `laser_scan`, \
+                     not both"
+                .into(),
+        })),
+        Some(l) => Ok(Scan::Laser(LaserScan {
+            angle_min: l.angle_min,
+            angle_increment: l.angle_increment,
+            range_min: l.range_min,
+            range_max: l.range_max,
+            ranges: &l.ranges,
+        })),
+    }
+}
+
+/// The domain input of an Act request.
+pub(super) fn robot_input(r: &pb::ActRequest) -> Result<RobotInput<'_>, Status> {
+    Ok(RobotInput {
+        scan: scan_of(r)?,
+        goal_distance: r.goal_distance,
+        goal_angle: r.goal_angle,
+        v: r.v,
+        omega: r.omega,
+        robot_id: &r.robot_id,
+        expected_footprint_version: (r.expected_footprint_version != 0)
+            .then_some(r.expected_footprint_version),
+    })
 }
 
 /// The gRPC face of a [`DvstController`].
@@ -212,6 +272,9 @@ fn act_reply(c: Command, model: &ModelId) -> pb::ActReply {
         footprint: c.footprint,
         model_version: model.version.clone(),
         footprint_version: c.footprint_version,
+        arrived: c.arrived,
+        goal_tolerance: c.goal_tolerance,
+        filled_beams: c.filled_beams as u32,
     }
 }
 
@@ -223,6 +286,7 @@ fn footprint_reply(s: FootprintState) -> pb::SetFootprintReply {
         v_max: s.bounds.v_max,
         omega_max: s.bounds.omega_max,
         footprint_version: s.version,
+        goal_tolerance: s.goal_tolerance,
         footprint: s.robot.footprint.name,
     }
 }
@@ -244,9 +308,17 @@ fn info_reply(i: ControllerInfo) -> pb::InfoReply {
         meta_robot: fp.robot.meta.describe(),
         margin: fp.robot.margin,
         footprint_version: fp.version,
+        goal_tolerance: fp.goal_tolerance,
+        lidar_x: fp.robot.lidar.x,
+        lidar_y: fp.robot.lidar.y,
+        lidar_yaw: fp.robot.lidar.yaw,
+        lidar_uncovered_range: fp.robot.lidar.uncovered_range,
         footprint: fp.robot.footprint.name,
         model: i.model.name,
         model_version: i.model.version,
+        robots: i.robots as u32,
+        max_robots: i.max_robots as u32,
+        robot_idle_s: i.robot_idle.as_secs_f64(),
     }
 }
 
@@ -255,13 +327,7 @@ impl Controller for ControllerService {
     async fn act(&self, req: Request<pb::ActRequest>) -> Result<Response<pb::ActReply>, Status> {
         self.authorize(&req)?;
         let r = req.into_inner();
-        let input = RobotInput {
-            scan: &r.scan,
-            goal_distance: r.goal_distance,
-            goal_angle: r.goal_angle,
-            v: r.v,
-            omega: r.omega,
-        };
+        let input = robot_input(&r)?;
         // One inference runs on this thread: it takes less than handing it to the blocking pool
         // and back would add (`dvnav bench serve`; figures in docs/results.md).
         let command = self.ctl.act(&input).inspect_err(|e| {
@@ -278,7 +344,7 @@ impl Controller for ControllerService {
     ) -> Result<Response<pb::SetFootprintReply>, Status> {
         self.authorize(&req)?;
         let r = req.into_inner();
-        let state = self.ctl.set_footprint_toml(&r.footprint_toml).inspect_err(|e| {
+        let state = self.ctl.set_footprint_toml(&r.robot_id, &r.footprint_toml).inspect_err(|e| {
             tracing::warn!(robot = %r.robot_id, error = %e, "SetFootprint refused");
         });
         let state = state.map_err(status)?;
@@ -295,168 +361,27 @@ impl Controller for ControllerService {
 
     async fn info(&self, req: Request<pb::InfoRequest>) -> Result<Response<pb::InfoReply>, Status> {
         self.authorize(&req)?;
-        Ok(Response::new(info_reply(self.ctl.info())))
-    }
-}
-
-/// What `dvnav bench serve --json` prints: latency of one command at batch 1 (ms), through
-/// the gRPC service over loopback and in-process (checks, DVST and the policy, no network).
-#[derive(serde::Serialize)]
-pub struct ServeBench {
-    calls: usize,
-    grpc_p50_ms: f64,
-    grpc_p99_ms: f64,
-    grpc_mean_ms: f64,
-    grpc_max_ms: f64,
-    in_process_p50_ms: f64,
-    in_process_p99_ms: f64,
-    in_process_mean_ms: f64,
-    in_process_max_ms: f64,
-    target_p99_ms: f64,
-    meets_target: bool,
-    beams: usize,
-    mu: f64,
-    model: String,
-    footprint: String,
-}
-
-/// Latency of `calls` commands, one at a time, through the service over loopback gRPC (client
-/// and server in this process, on `dvnav`'s 2-worker runtime) and in-process.
-pub fn bench(checkpoint: &Path, footprint: &Path, calls: usize) -> anyhow::Result<ServeBench> {
-    anyhow::ensure!(calls >= 100, "--calls must be at least 100 for a p99");
-    single_candle_thread();
-    let ctl = Arc::new(load_controller(checkpoint, footprint, None)?);
-    let info = ctl.info();
-    let beams = info.beams;
-    // Scans that change from call to call, like a robot moving through a room.
-    let request = |k: usize| pb::ActRequest {
-        scan: (0..beams).map(|i| 0.3 + 4.0 * (1.0 + ((i + 7 * k) as f32 * 0.05).sin())).collect(),
-        goal_distance: 0.5 + (k % 40) as f64 * 0.1,
-        goal_angle: ((k % 60) as f64 - 30.0) * 0.05,
-        v: 0.2,
-        omega: 0.1,
-        robot_id: "bench".into(),
-    };
-    let warmup = 50;
-
-    let mut local = Vec::with_capacity(calls);
-    for k in 0..warmup + calls {
-        let r = request(k);
-        let input = RobotInput {
-            scan: &r.scan,
-            goal_distance: r.goal_distance,
-            goal_angle: r.goal_angle,
-            v: r.v,
-            omega: r.omega,
-        };
-        let t = Instant::now();
-        ctl.act(&input)?;
-        if k >= warmup {
-            local.push(t.elapsed().as_secs_f64() * 1e3);
+        let r = req.into_inner();
+        if r.robot_id.len() > dvnav_nav::dvst::controller::MAX_ROBOT_ID {
+            return Err(status(ControllerError::InvalidArgument {
+                field: "robot_id".into(),
+                reason: format!(
+                    "{} bytes; a robot id has at most {}",
+                    r.robot_id.len(),
+                    dvnav_nav::dvst::controller::MAX_ROBOT_ID
+                ),
+            }));
         }
-    }
-
-    let remote = super::runtime()?.block_on(async {
-        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
-        let addr = listener.local_addr()?;
-        let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
-        let server = tokio::spawn(serve(
-            listener,
-            async {
-                let _ = stopped.await;
-            },
-            ctl.clone(),
-            None,
-            None,
-        ));
-        let mut client =
-            pb::controller_client::ControllerClient::connect(format!("http://{addr}")).await?;
-        let mut times = Vec::with_capacity(calls);
-        for k in 0..warmup + calls {
-            let r = request(k);
-            let t = Instant::now();
-            client.act(r).await?;
-            if k >= warmup {
-                times.push(t.elapsed().as_secs_f64() * 1e3);
-            }
-        }
-        let _ = stop.send(());
-        server.await??;
-        anyhow::Ok(times)
-    })?;
-    let (g, l) = (Latency::of(remote), Latency::of(local));
-    let fp = &info.footprint;
-    Ok(ServeBench {
-        calls,
-        grpc_p50_ms: g.p50,
-        grpc_p99_ms: g.p99,
-        grpc_mean_ms: g.mean,
-        grpc_max_ms: g.max,
-        in_process_p50_ms: l.p50,
-        in_process_p99_ms: l.p99,
-        in_process_mean_ms: l.mean,
-        in_process_max_ms: l.max,
-        target_p99_ms: 2.0,
-        meets_target: g.p99 < 2.0,
-        beams,
-        mu: fp.mu,
-        model: format!("{} ({})", info.model.name, info.model.version),
-        footprint: footprint.display().to_string(),
-    })
-}
-
-impl ServeBench {
-    /// One line for people.
-    pub fn summary(&self) -> String {
-        format!(
-            "controller, batch 1, {} calls: gRPC over loopback p50 {:.3} ms, p99 {:.3} ms, mean \
-             {:.3} ms, max {:.3} ms (target p99 < {} ms: {}); in-process p50 {:.3} ms, p99 {:.3} ms",
-            self.calls,
-            self.grpc_p50_ms,
-            self.grpc_p99_ms,
-            self.grpc_mean_ms,
-            self.grpc_max_ms,
-            self.target_p99_ms,
-            if self.meets_target { "met" } else { "missed" },
-            self.in_process_p50_ms,
-            self.in_process_p99_ms
-        )
+        Ok(Response::new(info_reply(self.ctl.info(&r.robot_id))))
     }
 }
 
-/// Percentiles of a sample of latencies (ms): the nearest-rank definition.
-struct Latency {
-    p50: f64,
-    p99: f64,
-    mean: f64,
-    max: f64,
-}
-
-impl Latency {
-    fn of(mut ms: Vec<f64>) -> Latency {
-        ms.sort_by(f64::total_cmp);
-        let rank = |q: f64| ms[((q * ms.len() as f64).ceil() as usize).clamp(1, ms.len()) - 1];
-        Latency {
-            p50: rank(0.50),
-            p99: rank(0.99),
-            mean: ms.iter().sum::<f64>() / ms.len() as f64,
-            max: ms[ms.len() - 1],
-        }
-    }
-}
+mod bench;
+pub use bench::{FleetLoad, bench};
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn nearest_rank_percentiles() {
-        let l = Latency::of((1..=200).rev().map(f64::from).collect());
-        assert_eq!((l.p50, l.p99, l.max), (100.0, 198.0, 200.0));
-        assert!((l.mean - 100.5).abs() < 1e-12);
-        let one = Latency::of(vec![3.0]);
-        assert_eq!((one.p50, one.p99, one.max), (3.0, 3.0, 3.0));
-    }
 
     #[test]
     fn domain_errors_map_to_status_codes() {
