@@ -1,7 +1,7 @@
 # dvnav — common tasks. `make test` is what CI runs (.ci/run).
 CARGO ?= cargo
 
-.PHONY: all build release test test-learning check-mcap check-deploy test-multihost lint fmt bench torch-venv train clean
+.PHONY: all build release test test-learning check-mcap check-deploy test-multihost test-ros2 lint fmt bench torch-venv train clean
 
 all: build
 
@@ -75,6 +75,24 @@ check-deploy:
 test-multihost:
 	$(CARGO) build $(DVNAV_BIN)
 	bash scripts/multihost.sh target/debug/dvnav
+
+# The ROS 2 bridge (deploy/ros2/) and `dvnav replay`: the bridge's message conversion and control
+# cycle with real ROS 2 message classes and CDR from the `rosbags` package, against a real
+# `dvnav serve`; replay over rosbag2 MCAP bags the tests write with `rosbags`. Packages in a venv
+# under target/ (deploy/ros2/requirements-test.txt); rclpy itself is not needed. Skips, exit 0,
+# without python3 and its venv module.
+ROS2_PYENV := target/pyenv-ros2
+test-ros2:
+	@if ! command -v $(PYTHON) >/dev/null 2>&1 || ! $(PYTHON) -c 'import venv, ensurepip' >/dev/null 2>&1; then \
+		echo "test-ros2: SKIPPED: no $(PYTHON) with the venv module; the bridge and replay tests did not run"; \
+		exit 0; \
+	fi; \
+	set -e; \
+	[ -x $(ROS2_PYENV)/bin/python ] || $(PYTHON) -m venv $(ROS2_PYENV); \
+	$(ROS2_PYENV)/bin/pip install --quiet --disable-pip-version-check -r deploy/ros2/requirements-test.txt; \
+	deploy/ros2/gen_proto.sh $(ROS2_PYENV)/bin/python; \
+	$(CARGO) build $(DVNAV_BIN); \
+	cd deploy/ros2 && DVNAV_BIN=$(CURDIR)/target/debug/dvnav ../../$(ROS2_PYENV)/bin/python -m pytest -q -p no:cacheprovider tests
 
 # Crate layering and no import loops inside a crate (scripts/check_layers.py; Python 3.11+).
 lint:

@@ -8,6 +8,7 @@ mod eval_out;
 mod inspect;
 mod learner;
 mod plot;
+pub mod replay;
 mod rooms;
 mod serve;
 mod tls;
@@ -71,9 +72,13 @@ enum Command {
     /// DVST: the dimension-scaled robot and its scale μ for a varied robot (a footprint file),
     /// as text, JSON, or a figure.
     Transfer(transfer::TransferArgs),
-    /// DVST controller service (gRPC): a robot sends its scan, goal and velocity each control
-    /// cycle and gets (v, ω) back; its footprint can change at run time.
+    /// DVST controller service (gRPC): robots send their scan (the meta layout or any
+    /// LaserScan), goal and velocity each control cycle and get (v, ω) back, `arrived` at the
+    /// goal; each robot's footprint can change at run time.
     Serve(serve::ServeArgs),
+    /// The controller over a recorded ROS 2 bag (MCAP, CDR): what it would have commanded at
+    /// each LaserScan, given the odometry and a goal; to CSV and a figure.
+    Replay(replay::ReplayArgs),
     /// Write a CA and TLS certificates for runs across machines (`--tls-cert`, `--tls-ca`).
     ///
     /// Writes into --out: `ca.pem` and `ca.key`, a new private CA (clients trust `ca.pem`:
@@ -116,6 +121,7 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Rooms(a) => rooms::run(a),
         Command::Transfer(a) => transfer::run(a),
         Command::Serve(a) => serve::run(a),
+        Command::Replay(a) => replay::run(a),
         Command::Certs(a) => certs::run(a),
     }
 }

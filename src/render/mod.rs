@@ -16,6 +16,7 @@
 
 pub mod curves;
 pub mod dvst;
+pub mod replay;
 pub mod room;
 pub mod room_map;
 pub mod text;

@@ -122,14 +122,42 @@ pub fn load_controller(
     footprint: &Path,
     margin: Option<f64>,
 ) -> anyhow::Result<DvstController<MetaAgent>> {
+    let text = std::fs::read_to_string(footprint).map_err(|e| {
+        anyhow::anyhow!("{}: cannot read the footprint file: {e}", footprint.display())
+    })?;
+    controller_for(checkpoint, &text, Some(footprint), margin)
+}
+
+/// The meta agent of `checkpoint` driving the robot of the footprint file text
+/// `footprint_toml` (read from `source`); `None` drives the meta robot itself (a model trained
+/// as a circle).
+pub(super) fn controller_for(
+    checkpoint: &Path,
+    footprint_toml: &str,
+    source: Option<&Path>,
+    margin: Option<f64>,
+) -> anyhow::Result<DvstController<MetaAgent>> {
     let file = dvnav_nav::policy::read_policy(checkpoint)?;
     let agent = MetaAgent::from_policy_file(&file)?;
     let model = model_id(&file)?;
     let cfg = file.config;
-    let text = std::fs::read_to_string(footprint).map_err(|e| {
-        anyhow::anyhow!("{}: cannot read the footprint file: {e}", footprint.display())
-    })?;
-    DvstController::new(agent, &cfg, model, &text, &footprint.display().to_string(), margin)
+    match source {
+        Some(path) => {
+            let source = path.display().to_string();
+            DvstController::new(agent, &cfg, model, footprint_toml, &source, margin)
+        }
+        None => {
+            anyhow::ensure!(
+                cfg.env.footprint.is_none(),
+                "the model was trained as a footprint of its own; give the robot's with --footprint"
+            );
+            let meta = format!(
+                "name = \"meta robot\"\n[[parts]]\nshape = \"circle\"\ncenter = [0.0, 0.0]\nradius = {}\n",
+                cfg.env.robot_radius
+            );
+            DvstController::new(agent, &cfg, model, &meta, "the meta robot", margin)
+        }
+    }
 }
 
 /// The model's name (its directory) and version: FNV-1a 64 of its weights, so two servers (or

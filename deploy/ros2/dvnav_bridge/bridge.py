@@ -1,0 +1,111 @@
+"""The bridge's control cycle without rclpy: the latest scan, odometry and goal in, one Act call,
+one velocity command out, or a stop with its reason. `node.py` feeds it from ROS topics; the
+tests feed it real ROS 2 message objects (from `rosbags`) against a real `dvnav serve`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import grpc
+
+from . import conversion
+from .proto import pb2, pb2_grpc
+
+
+@dataclass(frozen=True)
+class Cycle:
+    """What one control cycle decided: the command to publish and, for a stop, why."""
+
+    v: float
+    omega: float
+    stop: str | None = None
+    arrived: bool = False
+
+
+STOP = (0.0, 0.0)
+
+
+class BridgeCore:
+    """One robot driven through a controller service. Not thread-safe: call from one thread
+    (the node's executor)."""
+
+    def __init__(
+        self,
+        channel: grpc.Channel,
+        robot_id: str = "",
+        footprint_toml: str | None = None,
+        token: str | None = None,
+        timeouts: conversion.Timeouts = conversion.Timeouts(),
+        call_timeout_s: float = 0.2,
+    ):
+        self.stub = pb2_grpc.ControllerStub(channel)
+        self.robot_id = robot_id
+        self.footprint_toml = footprint_toml
+        self.metadata = [("authorization", f"Bearer {token}")] if token else []
+        self.timeouts = timeouts
+        self.call_timeout_s = call_timeout_s
+        self.scan = None
+        self.scan_at: float | None = None
+        self.odom = None
+        self.odom_at: float | None = None
+        self.goal: tuple[float, float] | None = None
+        self.footprint_version = 0
+        self.info = None
+
+    def connect(self) -> "pb2.InfoReply":
+        """Sets the robot's footprint (if it has a file) and reads what the server expects."""
+        if self.footprint_toml is not None:
+            self._set_footprint()
+        self.info = self.stub.Info(
+            pb2.InfoRequest(robot_id=self.robot_id),
+            metadata=self.metadata,
+            timeout=max(self.call_timeout_s, 2.0),
+        )
+        if self.footprint_toml is None:
+            self.footprint_version = self.info.footprint_version
+        return self.info
+
+    def _set_footprint(self) -> None:
+        reply = self.stub.SetFootprint(
+            pb2.SetFootprintRequest(footprint_toml=self.footprint_toml, robot_id=self.robot_id),
+            metadata=self.metadata,
+            timeout=max(self.call_timeout_s, 2.0),
+        )
+        self.footprint_version = reply.footprint_version
+
+    def on_scan(self, msg, now: float) -> None:
+        self.scan, self.scan_at = msg, now
+
+    def on_odom(self, msg, now: float) -> None:
+        self.odom, self.odom_at = msg, now
+
+    def on_goal(self, msg) -> None:
+        self.goal = conversion.goal_xy(msg)
+
+    def step(self, now: float) -> Cycle:
+        """One control cycle at `now` (s, the node's clock)."""
+        if self.goal is None:
+            return Cycle(*STOP, stop="no goal")
+        why = conversion.stale(now, self.scan_at, self.odom_at, self.timeouts)
+        if why is not None:
+            return Cycle(*STOP, stop=why)
+        state = conversion.robot_state(self.odom)
+        request = conversion.act_request(
+            pb2, self.scan, state, self.goal, self.robot_id, self.footprint_version
+        )
+        try:
+            reply = self.stub.Act(request, metadata=self.metadata, timeout=self.call_timeout_s)
+        except grpc.RpcError as e:
+            if e.code() == grpc.StatusCode.FAILED_PRECONDITION and self.footprint_toml is not None:
+                # The server forgot this robot (idle expiry, restart): set its footprint again
+                # and stop for this cycle rather than drive as another robot.
+                try:
+                    self._set_footprint()
+                except grpc.RpcError as again:
+                    return Cycle(*STOP, stop=f"server error: {again.code().name}: {again.details()}")
+                return Cycle(*STOP, stop="footprint set again after the server forgot it")
+            return Cycle(*STOP, stop=f"server error: {e.code().name}: {e.details()}")
+        if reply.arrived:
+            self.goal = None
+            return Cycle(*STOP, stop="arrived", arrived=True)
+        return Cycle(reply.v, reply.omega)

@@ -1,0 +1,115 @@
+"""ROS 2 messages to and from dvnav's controller protocol (dvnav.controller.v1), as plain
+functions: no rclpy here, so the same code runs on a robot with ROS 2's message classes and in
+the tests with those of the `rosbags` package (same field names, same types)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+def yaw_of(q) -> float:
+    """The heading (rad) of a geometry_msgs/Quaternion: its rotation about z."""
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+def wrap(a: float) -> float:
+    """An angle in (-pi, pi]."""
+    return math.atan2(math.sin(a), math.cos(a))
+
+
+def stamp_seconds(header) -> float:
+    """A std_msgs/Header's stamp in seconds."""
+    return header.stamp.sec + header.stamp.nanosec * 1e-9
+
+
+@dataclass(frozen=True)
+class RobotState:
+    """Where the robot is and how it moves, from nav_msgs/Odometry: the pose in the odometry
+    frame (m, m, rad), the velocity in the robot frame (m/s, rad/s)."""
+
+    x: float
+    y: float
+    yaw: float
+    v: float
+    omega: float
+
+
+def robot_state(odom) -> RobotState:
+    p = odom.pose.pose
+    t = odom.twist.twist
+    return RobotState(
+        x=float(p.position.x),
+        y=float(p.position.y),
+        yaw=yaw_of(p.orientation),
+        v=float(t.linear.x),
+        omega=float(t.angular.z),
+    )
+
+
+def goal_xy(goal_pose) -> tuple[float, float]:
+    """A geometry_msgs/PoseStamped goal's position, taken in the odometry frame."""
+    return float(goal_pose.pose.position.x), float(goal_pose.pose.position.y)
+
+
+def goal_relative(goal: tuple[float, float], state: RobotState) -> tuple[float, float]:
+    """The goal as the controller wants it: distance (m) and bearing in the robot frame (rad,
+    left positive)."""
+    dx, dy = goal[0] - state.x, goal[1] - state.y
+    return math.hypot(dx, dy), wrap(math.atan2(dy, dx) - state.yaw)
+
+
+def laser_scan(pb2, scan):
+    """A sensor_msgs/LaserScan as the controller's LaserScan: any count, any field of view,
+    either direction; +inf, -inf and NaN are sent as they are (REP 117: the server reads them)."""
+    return pb2.LaserScan(
+        angle_min=float(scan.angle_min),
+        angle_increment=float(scan.angle_increment),
+        range_min=float(scan.range_min),
+        range_max=float(scan.range_max),
+        ranges=[float(r) for r in scan.ranges],
+    )
+
+
+def act_request(pb2, scan, state: RobotState, goal, robot_id: str = "", expected_version: int = 0):
+    """One control cycle's ActRequest from the latest scan, odometry state and goal."""
+    distance, angle = goal_relative(goal, state)
+    return pb2.ActRequest(
+        laser_scan=laser_scan(pb2, scan),
+        goal_distance=distance,
+        goal_angle=angle,
+        v=state.v,
+        omega=state.omega,
+        robot_id=robot_id,
+        expected_footprint_version=expected_version,
+    )
+
+
+def twist(twist_type, vector3_type, v: float, omega: float):
+    """A geometry_msgs/Twist commanding (v, omega): x ahead, rotation about z."""
+    return twist_type(
+        linear=vector3_type(x=float(v), y=0.0, z=0.0),
+        angular=vector3_type(x=0.0, y=0.0, z=float(omega)),
+    )
+
+
+@dataclass(frozen=True)
+class Timeouts:
+    """How old (s) the latest scan and odometry may be before the robot is stopped."""
+
+    scan_s: float = 0.5
+    odom_s: float = 0.5
+
+
+def stale(now: float, scan_at: float | None, odom_at: float | None, timeouts: Timeouts) -> str | None:
+    """Why the robot must not move now, if its inputs are missing or too old: a message, else
+    None. Times are when the messages arrived, on the node's clock (s)."""
+    if scan_at is None:
+        return "no scan yet"
+    if odom_at is None:
+        return "no odometry yet"
+    if now - scan_at > timeouts.scan_s:
+        return f"scan is {now - scan_at:.2f} s old (timeout {timeouts.scan_s} s)"
+    if now - odom_at > timeouts.odom_s:
+        return f"odometry is {now - odom_at:.2f} s old (timeout {timeouts.odom_s} s)"
+    return None

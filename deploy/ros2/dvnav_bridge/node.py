@@ -1,0 +1,101 @@
+"""The ROS 2 node: subscribes sensor_msgs/LaserScan (`scan`), nav_msgs/Odometry (`odom`) and
+geometry_msgs/PoseStamped (`goal_pose`, in the odometry frame), calls `dvnav serve` at the
+control period and publishes geometry_msgs/Twist on `cmd_vel`; a zero Twist on arrival, on a
+stale scan or odometry, and on a server error. See deploy/ros2/README.md.
+
+    python3 -m dvnav_bridge.node --ros-args -p server:=127.0.0.1:50061 \
+        -p footprint_file:=footprints/paper-medium.toml -p robot_id:=tb2
+"""
+
+from __future__ import annotations
+
+import os
+
+import grpc
+
+
+def main(args=None) -> None:
+    # rclpy and the message packages come with ROS 2; imported here so that the conversion and
+    # the control cycle import (and are tested) without them.
+    import rclpy
+    from geometry_msgs.msg import PoseStamped, Twist, Vector3
+    from nav_msgs.msg import Odometry
+    from rclpy.node import Node
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import LaserScan
+
+    from . import conversion
+    from .bridge import BridgeCore
+
+    class DvnavBridge(Node):
+        def __init__(self):
+            super().__init__("dvnav_bridge")
+            server = self.declare_parameter("server", "127.0.0.1:50061").value
+            robot_id = self.declare_parameter("robot_id", "").value
+            footprint_file = self.declare_parameter("footprint_file", "").value
+            ca_file = self.declare_parameter("tls_ca", "").value
+            timeouts = conversion.Timeouts(
+                scan_s=self.declare_parameter("scan_timeout_s", 0.5).value,
+                odom_s=self.declare_parameter("odom_timeout_s", 0.5).value,
+            )
+            token = os.environ.get("DVNAV_TOKEN") or None
+            if ca_file:
+                with open(ca_file, "rb") as f:
+                    channel = grpc.secure_channel(server, grpc.ssl_channel_credentials(f.read()))
+            else:
+                channel = grpc.insecure_channel(server)
+            footprint = None
+            if footprint_file:
+                with open(footprint_file, encoding="utf-8") as f:
+                    footprint = f.read()
+            self.core = BridgeCore(channel, robot_id, footprint, token, timeouts)
+            info = self.core.connect()
+            period = info.control_period_s
+            self.get_logger().info(
+                f"dvnav serve at {server}: model {info.model} ({info.model_version}), footprint "
+                f"{info.footprint!r}, mu {info.mu:.3f}, goal tolerance {info.goal_tolerance:.3f} m, "
+                f"control period {period} s"
+            )
+            self.cmd = self.create_publisher(Twist, "cmd_vel", 10)
+            self.create_subscription(LaserScan, "scan", self._scan, qos_profile_sensor_data)
+            self.create_subscription(Odometry, "odom", self._odom, 20)
+            self.create_subscription(PoseStamped, "goal_pose", self._goal, 10)
+            self.create_timer(period, self._tick)
+            self._last_stop = None
+            self._Twist, self._Vector3 = Twist, Vector3
+
+        def _now(self) -> float:
+            return self.get_clock().now().nanoseconds * 1e-9
+
+        def _scan(self, msg):
+            self.core.on_scan(msg, self._now())
+
+        def _odom(self, msg):
+            self.core.on_odom(msg, self._now())
+
+        def _goal(self, msg):
+            self.core.on_goal(msg)
+            self.get_logger().info(f"goal ({msg.pose.position.x:.2f}, {msg.pose.position.y:.2f})")
+
+        def _tick(self):
+            c = self.core.step(self._now())
+            self.cmd.publish(conversion.twist(self._Twist, self._Vector3, c.v, c.omega))
+            if c.stop != self._last_stop and c.stop is not None:
+                log = self.get_logger().info if c.arrived or c.stop == "no goal" else self.get_logger().warn
+                log(f"stopped: {c.stop}")
+            self._last_stop = c.stop
+
+    rclpy.init(args=args)
+    node = DvnavBridge()
+    try:
+        rclpy.spin(node)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.cmd.publish(conversion.twist(node._Twist, node._Vector3, 0.0, 0.0))
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()
