@@ -8,7 +8,7 @@ mod eval_out;
 mod inspect;
 mod learner;
 mod plot;
-pub mod replay;
+mod replay;
 mod rooms;
 mod serve;
 mod tls;

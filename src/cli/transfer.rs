@@ -137,6 +137,7 @@ mod tests {
             ("circle-with-cargo.toml", (0.45f64.hypot(0.15) + 0.03) / 0.2),
             ("cart-with-cargo.toml", (0.35 + 0.03) / 0.2),
             ("rect-with-cargo.toml", (0.40f64.hypot(0.23) + 0.03) / 0.2),
+            ("turtlebot2-hokuyo.toml", (0.177 + 0.05) / 0.2),
         ];
         let mut files: Vec<String> = std::fs::read_dir(&dir)
             .unwrap()
@@ -151,6 +152,8 @@ mod tests {
             robot.validate().unwrap();
             assert!((robot.mu() - mu).abs() < 1e-12, "{file}: mu {} != {mu}", robot.mu());
         }
+        let tb2 = VariedRobot::load(&dir.join("turtlebot2-hokuyo.toml")).unwrap();
+        assert_eq!((tb2.lidar.x, tb2.lidar.yaw), (0.1, 0.0));
         let cart = VariedRobot::load(&dir.join("cart-with-cargo.toml")).unwrap();
         let r = report("cart".into(), &cart);
         assert_eq!((r.v_max, r.omega_max, r.v_max_from), (0.4, 1.2, "file"));

@@ -73,3 +73,11 @@ def test_stale_inputs_stop_the_robot():
     assert "scan is 0.60 s old" in conversion.stale(10.0, 9.4, 9.9, t)
     assert "odometry is 0.40 s old" in conversion.stale(10.0, 9.9, 9.6, t)
     assert conversion.stale(10.0, 9.6, 9.8, t) is None
+
+
+def test_the_node_module_imports_without_rclpy():
+    # rclpy is imported inside main(), so the module itself loads anywhere (a syntax error or a
+    # broken import of the bridge would fail here).
+    from dvnav_bridge import node
+
+    assert callable(node.main)

@@ -5,11 +5,12 @@
 //! bag of your own robot before letting the controller drive it.
 
 mod bag;
-pub mod ros;
+mod ros;
 
+use crate::render::replay::ReplayFigure;
 use clap::Args;
-use dvnav_nav::dvst::LaserScan;
 use dvnav_nav::dvst::controller::{RobotInput, Scan};
+use dvnav_nav::dvst::{LaserScan, SensorSetup};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -132,7 +133,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<ExitCode> {
     }
     if let Some(path) = &args.figure {
         let lidar = ctl.footprint("").robot.lidar;
-        let canvas = crate::render::replay::render(&out.rows, &out.scans, &lidar, args.goal, 900)?;
+        let canvas = crate::render::replay::render(&figure(&out, &lidar, args.goal), 900)?;
         std::fs::write(path, canvas.encode_png()?)
             .map_err(|e| anyhow::anyhow!("cannot write --figure {}: {e}", path.display()))?;
         eprintln!("replay: drew {}", path.display());
@@ -215,6 +216,39 @@ fn replay<P: dvnav_nav::policy::NavPolicy>(
         out.scans.push(scan);
     }
     Ok(out)
+}
+
+/// The figure of a replay: the path, every scan's returns in the odometry frame, the goal.
+fn figure(out: &Replayed, lidar: &SensorSetup, goal: [f64; 2]) -> ReplayFigure {
+    let arrived = out.rows.iter().find(|r| r.arrived);
+    ReplayFigure {
+        path: out.rows.iter().map(|r| ([r.x, r.y], r.v)).collect(),
+        returns: out.rows.iter().zip(&out.scans).flat_map(|(r, s)| returns(r, s, lidar)).collect(),
+        goal,
+        tolerance: out.rows[0].goal_tolerance,
+        arrived: arrived.map(|r| (r.time_s, [r.x, r.y])),
+        duration_s: out.rows.last().map_or(0.0, |r| r.time_s),
+    }
+}
+
+/// The valid returns of `scan` taken at `row`'s pose by a sensor mounted as `lidar` says, in
+/// the odometry frame.
+fn returns<'a>(
+    row: &'a CommandRow,
+    scan: &'a ros::LaserScan,
+    lidar: &'a SensorSetup,
+) -> impl Iterator<Item = [f64; 2]> + 'a {
+    let (c, s) = (row.yaw.cos(), row.yaw.sin());
+    let sensor = [row.x + c * lidar.x - s * lidar.y, row.y + s * lidar.x + c * lidar.y];
+    let (lo, hi) = (f64::from(scan.range_min), f64::from(scan.range_max));
+    scan.ranges.iter().enumerate().filter_map(move |(j, &r)| {
+        let r = f64::from(r);
+        let a = row.yaw
+            + lidar.yaw
+            + f64::from(scan.angle_min)
+            + j as f64 * f64::from(scan.angle_increment);
+        (lo..=hi).contains(&r).then(|| [sensor[0] + r * a.cos(), sensor[1] + r * a.sin()])
+    })
 }
 
 fn write_rows(path: &Path, rows: &[CommandRow]) -> anyhow::Result<()> {

@@ -27,13 +27,7 @@ pub struct Dvst<P> {
 impl<P: NavPolicy> Dvst<P> {
     /// Wraps `meta` for `robot`; the robot's missing velocity bounds are the meta policy's.
     pub fn new(meta: P, robot: VariedRobot) -> anyhow::Result<Self> {
-        anyhow::ensure!(
-            meta.obs_dim() == obs_dim(meta.beams()),
-            "DVST transfers the standard observation of {} values; this policy takes {} (a \
-             policy with the robot radius as an input is driven with each robot's own radius)",
-            obs_dim(meta.beams()),
-            meta.obs_dim()
-        );
+        check_standard_observation(&meta)?;
         robot.validate()?;
         let (v_max, omega_max) = meta.velocity_bounds();
         let bounds = robot.velocity_bounds(VelocityBounds { v_max, omega_max });
@@ -98,6 +92,19 @@ impl<P: NavPolicy> Dvst<P> {
         self.bounds = bounds;
         Ok(self.mu)
     }
+}
+
+/// DVST transfers the standard observation (scan, goal, velocity): a policy taking more
+/// cannot be wrapped.
+pub(crate) fn check_standard_observation(meta: &impl NavPolicy) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        meta.obs_dim() == obs_dim(meta.beams()),
+        "DVST transfers the standard observation of {} values; this policy takes {} (a policy \
+         with the robot radius as an input is driven with each robot's own radius)",
+        obs_dim(meta.beams()),
+        meta.obs_dim()
+    );
+    Ok(())
 }
 
 impl<P: NavPolicy> NavPolicy for Dvst<P> {

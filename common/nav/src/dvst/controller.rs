@@ -272,13 +272,7 @@ impl<P: NavPolicy> DvstController<P> {
             policy.beams(),
             lidar.beams
         );
-        anyhow::ensure!(
-            policy.obs_dim() == obs_dim(policy.beams()),
-            "DVST transfers the standard observation of {} values; this policy takes {} (a \
-             policy with the robot radius as an input is driven with each robot's own radius)",
-            obs_dim(policy.beams()),
-            policy.obs_dim()
-        );
+        super::agent::check_standard_observation(&policy)?;
         if let Some(m) = margin {
             anyhow::ensure!(m.is_finite() && m >= 0.0, "the margin must be ≥ 0 m, got {m}");
         }

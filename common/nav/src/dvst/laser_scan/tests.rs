@@ -55,11 +55,12 @@ fn random_scans_match_the_plain_computation() {
     let layouts = [META, BeamLayout::new(36, 360.0), BeamLayout::new(7, 90.0)];
     // (readings, field of view in degrees): a Hokuyo UTM-30LX, an RPLidar's varying counts, a
     // coarse 180° sensor, a depth camera's 87°, one reading.
-    let sensors = [(1081, 270.0), (1947, 360.0), (360, 359.0), (181, 180.0), (58, 87.0), (1, 1.0)];
+    let sensors: [(usize, f64); 6] =
+        [(1081, 270.0), (1947, 360.0), (360, 359.0), (181, 180.0), (58, 87.0), (1, 1.0)];
     for layout in layouts {
         for &(n, fov) in &sensors {
             for trial in 0..6 {
-                let inc = (fov as f64).to_radians() / (n.max(2) - 1) as f64
+                let inc = fov.to_radians() / (n.max(2) - 1) as f64
                     * if trial % 2 == 0 { 1.0 } else { -1.0 };
                 let centre: f64 = rng.random_range(-PI..PI);
                 let angle_min = centre - inc * (n - 1) as f64 / 2.0;
