@@ -390,7 +390,8 @@ async fn many_robots_send_laser_scans_arrive_and_expire_and_bad_input_is_refused
             range_max: l.range_max,
             ranges: &l.ranges,
         };
-        let want = local.act(&RobotInput::new(Scan::Laser(scan), 1.5, 0.3, 0.1, 0.0)).unwrap();
+        let input = RobotInput::new(Scan::Laser(scan), 1.5, 0.3, 0.1, 0.0);
+        let want = local.act_async(&input).await.unwrap();
         let got = client.act(r).await.unwrap().into_inner();
         assert_eq!((got.v, got.omega), (want.v, want.omega), "call {k}");
         assert_eq!((got.filled_beams, got.arrived), (0, false));

@@ -156,8 +156,8 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-fn replay<P: dvnav_nav::policy::NavPolicy>(
-    ctl: &dvnav_nav::dvst::DvstController<P>,
+fn replay(
+    ctl: &dvnav_nav::dvst::DvstController,
     rec: bag::Recording,
     goal: [f64; 2],
 ) -> anyhow::Result<Replayed> {

@@ -5,7 +5,6 @@
 
 use super::{load_controller, robot_input, serve, single_candle_thread};
 use dvnav_nav::dvst::DvstController;
-use dvnav_nav::policy::MetaAgent;
 use dvnav_proto::controller::v1 as pb;
 use std::path::Path;
 use std::sync::Arc;
@@ -98,11 +97,7 @@ fn request(beams: usize, k: usize, laser: bool, robot: &str) -> pb::ActRequest {
 
 const WARMUP: usize = 50;
 
-fn in_process(
-    ctl: &DvstController<MetaAgent>,
-    calls: usize,
-    laser: bool,
-) -> anyhow::Result<Latency> {
+fn in_process(ctl: &DvstController, calls: usize, laser: bool) -> anyhow::Result<Latency> {
     let mut ms = Vec::with_capacity(calls);
     for k in 0..WARMUP + calls {
         let r = request(ctl.beams(), k, laser, "bench");

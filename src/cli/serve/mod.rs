@@ -121,7 +121,7 @@ pub fn load_controller(
     checkpoint: &Path,
     footprint: &Path,
     margin: Option<f64>,
-) -> anyhow::Result<DvstController<MetaAgent>> {
+) -> anyhow::Result<DvstController> {
     let text = std::fs::read_to_string(footprint).map_err(|e| {
         anyhow::anyhow!("{}: cannot read the footprint file: {e}", footprint.display())
     })?;
@@ -136,7 +136,7 @@ pub(super) fn controller_for(
     footprint_toml: &str,
     source: Option<&Path>,
     margin: Option<f64>,
-) -> anyhow::Result<DvstController<MetaAgent>> {
+) -> anyhow::Result<DvstController> {
     let file = dvnav_nav::policy::read_policy(checkpoint)?;
     let agent = MetaAgent::from_policy_file(&file)?;
     let model = model_id(&file)?;
@@ -196,7 +196,7 @@ const DRAIN_GRACE: Duration = Duration::from_secs(2);
 pub async fn serve(
     listener: tokio::net::TcpListener,
     shutdown: impl Future<Output = ()>,
-    ctl: Arc<DvstController<MetaAgent>>,
+    ctl: Arc<DvstController>,
     token: Option<String>,
     tls: Option<tonic::transport::ServerTlsConfig>,
 ) -> anyhow::Result<()> {
@@ -275,7 +275,7 @@ pub(super) fn robot_input(r: &pb::ActRequest) -> Result<RobotInput<'_>, Status> 
 
 /// The gRPC face of a [`DvstController`].
 struct ControllerService {
-    ctl: Arc<DvstController<MetaAgent>>,
+    ctl: Arc<DvstController>,
     /// The shared token callers must present, if any.
     token: Option<String>,
 }
@@ -356,9 +356,9 @@ impl Controller for ControllerService {
         self.authorize(&req)?;
         let r = req.into_inner();
         let input = robot_input(&r)?;
-        // One inference runs on this thread: it takes less than handing it to the blocking pool
-        // and back would add (`dvnav bench serve`; figures in docs/results.md).
-        let command = self.ctl.act(&input).inspect_err(|e| {
+        // The policy runs on its own thread, batching what arrives together; this task waits
+        // without holding its worker (`dvst::policy_thread`).
+        let command = self.ctl.act_async(&input).await.inspect_err(|e| {
             tracing::debug!(robot = %r.robot_id, error = %e, "Act refused");
         });
         let command = command.map_err(status)?;

@@ -34,6 +34,7 @@
 
 use super::footprint_file::VariedRobot;
 use super::laser_scan::{self, BeamLayout, LaserScan, MAX_RANGE_M};
+use super::policy_thread::{PolicyThread, Reply};
 use super::robots::{RobotTable, TableFull};
 use super::scale::MetaRobot;
 use super::transfer::{VelocityBounds, transfer_observation, transfer_policy};
@@ -222,17 +223,20 @@ impl ControllerError {
     }
 }
 
-/// What the policy lock guards: the policy and the meta observation it is fed from.
-#[derive(Debug)]
-struct PolicySlot<P> {
-    policy: P,
-    meta_obs: Vec<f32>,
+/// A request checked and carried over to the meta robot, waiting for the policy (or already
+/// answered: arrived).
+struct Prepared {
+    state: Arc<FootprintState>,
+    filled_beams: usize,
+    /// The meta observation, or `None` once arrived.
+    meta_obs: Option<Vec<f32>>,
 }
 
 /// A meta agent driving many varied robots through DVST, shared by the requests of a service.
+/// The meta agent runs on a thread of its own ([`PolicyThread`]).
 #[derive(Debug)]
-pub struct DvstController<P> {
-    policy: Mutex<PolicySlot<P>>,
+pub struct DvstController {
+    policy: PolicyThread,
     robots: Mutex<RobotTable<Arc<FootprintState>>>,
     /// The robot of `dvnav serve --footprint`: every robot without one of its own.
     default_robot: Arc<FootprintState>,
@@ -252,12 +256,12 @@ pub struct DvstController<P> {
     commands: AtomicU64,
 }
 
-impl<P: NavPolicy> DvstController<P> {
+impl DvstController {
     /// Drives `policy`, trained with the run configuration `cfg`, for robots of the footprint
     /// file `robot_toml` (`source` names it in errors) unless they set their own. `margin`
     /// replaces the file's margin, here and in every later footprint. Room for
     /// [`DEFAULT_MAX_ROBOTS`] robots ([`with_robot_limits`](Self::with_robot_limits)).
-    pub fn new(
+    pub fn new<P: NavPolicy + Send + 'static>(
         policy: P,
         cfg: &Config,
         model: ModelId,
@@ -292,7 +296,7 @@ impl<P: NavPolicy> DvstController<P> {
         let default_robot =
             Arc::new(footprint_state(robot, 1, meta_bounds, cfg.env.goal_tolerance)?);
         Ok(Self {
-            policy: Mutex::new(PolicySlot { policy, meta_obs: vec![0.0; obs_dim(lidar.beams)] }),
+            policy: PolicyThread::spawn(policy, "dvst-policy")?,
             robots: Mutex::new(RobotTable::new(DEFAULT_MAX_ROBOTS, DEFAULT_ROBOT_IDLE)),
             default_robot,
             next_version: AtomicU64::new(2),
@@ -329,8 +333,28 @@ impl<P: NavPolicy> DvstController<P> {
     }
 
     /// The command for one control cycle. A malformed input is refused, naming the field,
-    /// before the policy sees it.
+    /// before the policy sees it. Blocks until the policy answers ([`act_async`](Self::act_async)
+    /// waits without blocking).
     pub fn act(&self, input: &RobotInput) -> Result<Command, ControllerError> {
+        let mut p = self.prepare(input)?;
+        let reply = p.meta_obs.take().map(|obs| self.policy.act_blocking(obs));
+        self.finish(p, reply)
+    }
+
+    /// [`act`](Self::act) for an async caller: waits for the policy without blocking the
+    /// caller's thread.
+    pub async fn act_async(&self, input: &RobotInput<'_>) -> Result<Command, ControllerError> {
+        let mut p = self.prepare(input)?;
+        let reply = match p.meta_obs.take() {
+            None => None,
+            Some(obs) => Some(self.policy.act(obs).await),
+        };
+        self.finish(p, reply)
+    }
+
+    /// Checks `input`, looks its robot up, resamples its scan and carries the observation over
+    /// to the meta robot.
+    fn prepare(&self, input: &RobotInput) -> Result<Prepared, ControllerError> {
         self.check(input)?;
         let state =
             self.robots().touch(input.robot_id, Instant::now(), || self.default_robot.clone())?;
@@ -357,7 +381,37 @@ impl<P: NavPolicy> DvstController<P> {
                 )?
             }
         };
-        let command = |v, omega, arrived| Command {
+        if input.goal_distance <= state.goal_tolerance {
+            return Ok(Prepared { state, filled_beams, meta_obs: None });
+        }
+        obs[b + GOAL_DISTANCE] = input.goal_distance as f32;
+        obs[b + GOAL_ANGLE] = wrap_angle(input.goal_angle) as f32;
+        obs[b + LINEAR_VELOCITY] = input.v as f32;
+        obs[b + ANGULAR_VELOCITY] = input.omega as f32;
+        let mut meta_obs = vec![0.0f32; obs.len()];
+        transfer_observation(&obs, b, state.mu, Some(self.scan_range), &mut meta_obs);
+        Ok(Prepared { state, filled_beams, meta_obs: Some(meta_obs) })
+    }
+
+    /// The command from the meta agent's answer (`None`: arrived, no question asked).
+    fn finish(&self, p: Prepared, reply: Option<Reply>) -> Result<Command, ControllerError> {
+        let Prepared { state, filled_beams, .. } = p;
+        let (v, omega, arrived) = match reply {
+            None => (0.0, 0.0, true),
+            Some(reply) => {
+                let (v_m, omega_m) =
+                    reply.map_err(|e| ControllerError::Policy(anyhow::Error::msg(e)))?;
+                if !(v_m.is_finite() && omega_m.is_finite()) {
+                    return Err(ControllerError::Policy(anyhow::anyhow!(
+                        "the meta policy answered a non-finite command ({v_m}, {omega_m})"
+                    )));
+                }
+                let (v, omega) = transfer_policy(v_m, omega_m, state.mu, state.bounds);
+                (v, omega, false)
+            }
+        };
+        self.commands.fetch_add(1, Ordering::Relaxed);
+        Ok(Command {
             v,
             omega,
             arrived,
@@ -366,32 +420,7 @@ impl<P: NavPolicy> DvstController<P> {
             mu: state.mu,
             footprint: state.robot.footprint.name.clone(),
             footprint_version: state.version,
-        };
-        self.commands.fetch_add(1, Ordering::Relaxed);
-        if input.goal_distance <= state.goal_tolerance {
-            return Ok(command(0.0, 0.0, true));
-        }
-        obs[b + GOAL_DISTANCE] = input.goal_distance as f32;
-        obs[b + GOAL_ANGLE] = wrap_angle(input.goal_angle) as f32;
-        obs[b + LINEAR_VELOCITY] = input.v as f32;
-        obs[b + ANGULAR_VELOCITY] = input.omega as f32;
-        let (v_m, omega_m) = {
-            let mut slot = self.policy.lock().unwrap_or_else(PoisonError::into_inner);
-            let PolicySlot { policy, meta_obs } = &mut *slot;
-            transfer_observation(&obs, b, state.mu, Some(self.scan_range), meta_obs);
-            policy.act(meta_obs).map_err(|e| {
-                self.commands.fetch_sub(1, Ordering::Relaxed);
-                ControllerError::Policy(e)
-            })?
-        };
-        if !(v_m.is_finite() && omega_m.is_finite()) {
-            self.commands.fetch_sub(1, Ordering::Relaxed);
-            return Err(ControllerError::Policy(anyhow::anyhow!(
-                "the meta policy answered a non-finite command ({v_m}, {omega_m})"
-            )));
-        }
-        let (v, omega) = transfer_policy(v_m, omega_m, state.mu, state.bounds);
-        Ok(command(v, omega, false))
+        })
     }
 
     /// Replaces robot `robot_id`'s footprint with the one the footprint file `text` describes
@@ -455,9 +484,8 @@ impl<P: NavPolicy> DvstController<P> {
         }
     }
 
-    /// Nothing a panic could leave half-changed sits behind these locks (the table's entries
-    /// are whole snapshots, the observation buffer is rewritten whole every call), so a
-    /// poisoned lock is used on.
+    /// Nothing a panic could leave half-changed sits behind this lock (the table's entries
+    /// are whole snapshots), so a poisoned lock is used on.
     fn robots(&self) -> MutexGuard<'_, RobotTable<Arc<FootprintState>>> {
         self.robots.lock().unwrap_or_else(PoisonError::into_inner)
     }

@@ -40,7 +40,7 @@ fn three_beam_config() -> Config {
     cfg
 }
 
-fn counter_controller(toml: &str) -> (DvstController<Counter>, Arc<AtomicU64>) {
+fn counter_controller(toml: &str) -> (DvstController, Arc<AtomicU64>) {
     let policy = Counter::default();
     let calls = policy.calls.clone();
     let ctl = DvstController::new(policy, &three_beam_config(), model_id(), toml, "t.toml", None)
@@ -377,7 +377,7 @@ fn each_robot_drives_with_its_own_footprint_and_expires_when_silent() {
     assert!(ctl.with_robot_limits_checked().is_err());
 }
 
-impl DvstController<Counter> {
+impl DvstController {
     fn with_robot_limits_checked(self) -> anyhow::Result<Self> {
         self.with_robot_limits(0, std::time::Duration::from_secs(1))
     }
