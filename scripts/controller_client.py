@@ -1,5 +1,6 @@
 """A robot's side of `dvnav serve`, as an example: Info, one Act, a footprint change, Act again,
-and two refusals (a NaN in the scan; a call without the token).
+Act with a LaserScan and at the goal, and two refusals (a NaN in the scan; a call without the
+token).
 
     pip install grpcio grpcio-tools
     python3 scripts/controller_client.py [--addr 127.0.0.1:50061] [--token-file token]
@@ -76,6 +77,19 @@ def main():
     cmd = ctl.Act(req, metadata=auth)
     print(f"v {cmd.v:.3f} m/s, omega {cmd.omega:.3f} rad/s"
           f" (mu {cmd.mu:.2f}, footprint {cmd.footprint_version})")
+
+    # The same robot with its LiDAR's own scan: a Hokuyo UTM-30LX's 1,081 readings over 270°,
+    # one of them with no return (+inf); the server resamples it to the meta agent's beams.
+    laser = pb.LaserScan(angle_min=-2.35619449, angle_increment=0.00436332313, range_min=0.023,
+                         range_max=30.0, ranges=[2.5] * 540 + [float("inf")] + [2.5] * 540)
+    cmd = ctl.Act(pb.ActRequest(laser_scan=laser, goal_distance=3.0, goal_angle=0.6, v=0.2,
+                                robot_id="cart-1"), metadata=auth)
+    print(f"LaserScan: v {cmd.v:.3f} m/s, omega {cmd.omega:.3f} rad/s, "
+          f"{cmd.filled_beams} meta beams unseen")
+    cmd = ctl.Act(pb.ActRequest(laser_scan=laser, goal_distance=0.3, robot_id="cart-1"),
+                  metadata=auth)
+    print(f"0.30 m from the goal: arrived {cmd.arrived} (tolerance {cmd.goal_tolerance:.3f} m), "
+          f"v {cmd.v:.3f}, omega {cmd.omega:.3f}")
 
     scan[17] = float("nan")
     try:
