@@ -9,6 +9,11 @@
 //! of the heartbeat interval), even part full: a slow actor still shows the learner it is alive and
 //! moving, so the watchdog can name one that stopped within a heartbeat (and the learner sees
 //! its transitions sooner).
+//!
+//! An episode's report goes in the batch that holds its last transition: a batch that comes
+//! due on an episode's last step waits for that episode's [`Adder::add_episode`], which the
+//! loop calls next. The learner refuses a batch whose reports its transitions do not back
+//! (`dvnav_link::consistency`).
 
 use dvnav_link::core::{Adder, BatchWriter, EpisodeStats};
 use dvnav_link::wire::EncodedBatch;
@@ -84,7 +89,8 @@ impl Adder for BatchingAdder {
         policy_version: u64,
     ) -> anyhow::Result<()> {
         self.writer.add(env, action, reward, next_obs, terminated, truncated, policy_version)?;
-        if self.due() {
+        // An episode's last step waits for its report (see the module docs).
+        if self.due() && !(terminated || truncated) {
             self.send()?;
         }
         Ok(())
@@ -92,7 +98,9 @@ impl Adder for BatchingAdder {
 
     fn add_episode(&mut self, stats: EpisodeStats) -> anyhow::Result<()> {
         self.writer.add_episode(stats);
-        self.opened.get_or_insert_with(Instant::now);
+        if self.due() {
+            self.send()?;
+        }
         Ok(())
     }
 
@@ -127,5 +135,35 @@ mod tests {
         add(&mut adder, 1);
         assert!(rx.try_recv().is_err());
         assert_eq!(adder.handed_over, 12);
+    }
+
+    #[test]
+    fn an_episode_report_goes_with_its_last_transition() {
+        let (tx, mut rx) = mpsc::channel(16);
+        let mut adder = BatchingAdder::new(4, 4, Duration::from_secs(60), tx);
+        adder.add_first(0, &[0.5; 4]).unwrap();
+        add(&mut adder, 3);
+        // The fourth transition fills the batch and ends the episode.
+        adder.add(0, [0.1, 0.2], 10.0, &[0.7; 4], true, false, 1).unwrap();
+        assert!(rx.try_recv().is_err(), "the full batch waits for the episode's report");
+        let stats = EpisodeStats {
+            env_index: 0,
+            stage: 0,
+            room: "env0".into(),
+            outcome: dvnav_sim::Outcome::Success,
+            steps: 4,
+            episode_return: 13.0,
+            policy_version: 1,
+            warmup: false,
+        };
+        adder.add_episode(stats).unwrap();
+        let mut bytes = Vec::new();
+        rx.try_recv().unwrap().write(0, 0, &mut bytes);
+        let msg = dvnav_link::wire::batch_from_proto(
+            prost::Message::decode(bytes.as_slice()).unwrap(),
+            4,
+        )
+        .unwrap();
+        assert_eq!((msg.len(), msg.episodes.len(), msg.terminated[3]), (4, 1, true));
     }
 }

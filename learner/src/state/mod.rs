@@ -12,6 +12,7 @@
 //!   sampler's rates and text).
 //! - [`error`]: [`LearnerError`], why a request is refused.
 //! - [`saved`]: [`SavedState`], the state's part of a checkpoint.
+//! - [`sessions`]: [`Sessions`], the credential that binds a transition stream to its actor.
 //!
 //! The submodules are plain data and import nothing from this one; this one imports them.
 //!
@@ -22,11 +23,13 @@
 pub mod error;
 pub mod live;
 pub mod saved;
+pub mod sessions;
 pub mod status;
 
 pub use error::LearnerError;
 pub use live::{LagStats, LiveMetrics, LiveSnapshot, StageStats};
 pub use saved::SavedState;
+pub use sessions::Sessions;
 pub use status::{Ack, ActorCounters, Progress, Readiness, Registration, Stall, StatusSnapshot};
 
 use crate::curriculum::{Curriculum, CurriculumState};
@@ -35,6 +38,7 @@ use crate::replay::{Batch, ObsCodec, ReplayBuffer};
 use crate::sac::UpdateMetrics;
 use crate::variable_source::VariableSource;
 use dvnav_config::Config;
+use dvnav_link::consistency::{self, EpisodeBounds};
 use dvnav_link::core::Variables;
 use dvnav_link::wire;
 use dvnav_proto as pb;
@@ -56,6 +60,7 @@ struct Counters {
     losses_finite: bool,
     done: bool,
     rejected_by_reason: BTreeMap<String, u64>,
+    sessions: Sessions,
     write_failures: BTreeMap<String, u64>,
     last_write_error: Option<String>,
     trainer_last_error: Option<String>,
@@ -67,6 +72,7 @@ pub struct LearnerState {
     config_toml: String,
     run_id: String,
     token: Option<String>,
+    episode_bounds: EpisodeBounds,
     replay: Mutex<ReplayBuffer>,
     limiter: RateLimiter,
     counters: Mutex<Counters>,
@@ -114,11 +120,13 @@ impl LearnerState {
                 losses_finite: true,
                 done: false,
                 rejected_by_reason: BTreeMap::new(),
+                sessions: Sessions::default(),
                 write_failures: BTreeMap::new(),
                 last_write_error: None,
                 trainer_last_error: None,
             }),
             config_toml: cfg.to_toml_string(),
+            episode_bounds: EpisodeBounds::new(&cfg.env, cfg.curriculum.rooms.len()),
             cfg,
             run_id,
             token,
@@ -156,12 +164,39 @@ impl LearnerState {
         &self.live
     }
 
-    /// Checks the shared token, when one is configured.
+    /// Checks the shared token, when one is configured; a refusal is counted under
+    /// `unauthenticated`.
     pub fn authorize(&self, presented: Option<&str>) -> Result<(), LearnerError> {
         if dvnav_tls::auth::token_accepted(self.token.as_deref(), presented) {
             Ok(())
         } else {
-            Err(LearnerError::Unauthenticated)
+            let e = LearnerError::Unauthenticated;
+            self.count_rejection(None, e.reason(), &e.to_string());
+            Err(e)
+        }
+    }
+
+    /// Binds a transition stream to the actor whose session `credential` it presents, and
+    /// marks that actor connected (undo with [`Self::set_connected`]). A missing or unknown
+    /// credential is refused and counted.
+    pub fn open_stream(&self, credential: Option<&str>) -> Result<u32, LearnerError> {
+        let found = {
+            let c = self.counters.lock().expect("counters lock");
+            match credential {
+                None => Err(LearnerError::NoSession),
+                Some(k) => c.sessions.actor(k).ok_or(LearnerError::UnknownSession),
+            }
+        };
+        match found {
+            Ok(id) => {
+                self.set_connected(id, true);
+                Ok(id)
+            }
+            Err(e) => {
+                self.count_rejection(None, e.reason(), &e.to_string());
+                tracing::warn!(error = %e, "refused a transition stream");
+                Err(e)
+            }
         }
     }
 
@@ -211,9 +246,10 @@ impl LearnerState {
         entry.registrations += 1;
         let next_sequence = entry.next_sequence;
         tracing::info!(actor_id, name, registrations = entry.registrations, "actor registered");
+        let session = c.sessions.issue(actor_id);
         let actor_seed =
             self.cfg.run.seed.wrapping_mul(1_000_003).wrapping_add(actor_id as u64 + 1);
-        Ok(Registration { actor_id, actor_seed, next_sequence })
+        Ok(Registration { actor_id, actor_seed, next_sequence, session })
     }
 
     /// Counts a refused request or batch under `reason`, and remembers `error` as the actor's
@@ -318,11 +354,19 @@ impl LearnerState {
         }
     }
 
-    /// Validates a batch and inserts it into the replay buffer, waiting first while ingestion is
-    /// ahead of training (backpressure). A batch whose sequence number was already inserted (a
-    /// resend after a reconnect) is acknowledged as a duplicate and not inserted again.
-    pub async fn ingest(&self, msg: pb::TransitionBatch) -> Result<Ack, LearnerError> {
-        let actor_id = msg.actor_id;
+    /// Validates a batch that arrived on a stream bound to `stream_actor`
+    /// ([`Self::open_stream`]) and inserts it into the replay buffer, waiting first while
+    /// ingestion is ahead of training (backpressure). Refused, and counted by reason: a batch
+    /// that claims another actor, one whose sequence number skips ahead of the next expected,
+    /// a malformed one, and one whose episode reports its transitions do not back
+    /// ([`consistency`]). A batch whose sequence number was already inserted (a resend after a
+    /// reconnect) is acknowledged as a duplicate and not inserted again.
+    pub async fn ingest(
+        &self,
+        stream_actor: u32,
+        msg: pb::TransitionBatch,
+    ) -> Result<Ack, LearnerError> {
+        let actor_id = stream_actor;
         let claimed = msg.count as u64;
         let sequence = msg.sequence;
         {
@@ -333,27 +377,38 @@ impl LearnerState {
                 tracing::warn!(actor_id, error = %e, "refused a batch");
                 return Err(e);
             };
+            let refusal = if msg.actor_id != actor_id {
+                Some(LearnerError::WrongActor { stream: actor_id, claimed: msg.actor_id })
+            } else if sequence > a.next_sequence {
+                Some(LearnerError::SequenceGap { got: sequence, expected: a.next_sequence })
+            } else {
+                None
+            };
+            if let Some(e) = refusal {
+                refuse_batch(&mut c, actor_id, claimed, &e);
+                return Err(e);
+            }
             if sequence < a.next_sequence {
                 a.duplicate_batches += 1;
                 tracing::debug!(actor_id, sequence, "duplicate batch acknowledged, not inserted");
                 return Ok(Ack { accepted: 0, duplicate: true });
             }
         }
-        let batch = match wire::batch_from_proto(msg, self.cfg.obs_dim()) {
+        let checked = wire::batch_from_proto(msg, self.cfg.obs_dim()).and_then(|b| {
+            consistency::check_episodes(&b, &self.episode_bounds)?;
+            Ok(b)
+        });
+        let batch = match checked {
             Ok(b) => b,
             Err(e) => {
-                let mut c = self.counters.lock().expect("counters lock");
-                // A batch refused for its count claims an untrusted number of transitions:
-                // count at most the largest batch there can be.
-                let claimed = claimed.min(wire::MAX_BATCH_TRANSITIONS as u64);
-                c.rejected += claimed;
-                *c.rejected_by_reason.entry(e.field.to_string()).or_default() += 1;
-                if let Some(a) = c.actors.get_mut(&actor_id) {
-                    a.transitions_rejected += claimed;
-                    a.last_error = Some(format!("malformed transition batch: {e}"));
-                }
-                tracing::warn!(actor_id, error = %e, "refused a malformed batch");
-                return Err(e.into());
+                let e = LearnerError::from(e);
+                refuse_batch(
+                    &mut self.counters.lock().expect("counters lock"),
+                    actor_id,
+                    claimed,
+                    &e,
+                );
+                return Err(e);
             }
         };
         // Cancelling this future here (the actor's stream broke while the batch waited) leaves
@@ -600,6 +655,20 @@ impl LearnerState {
             actors: c.actors.values().cloned().collect(),
         }
     }
+}
+
+/// Counts a refused batch of `actor_id` that claimed `claimed` transitions under its reason,
+/// and logs it.
+fn refuse_batch(c: &mut Counters, actor_id: u32, claimed: u64, e: &LearnerError) {
+    // The claimed count is untrusted: count at most the largest batch there can be.
+    let claimed = claimed.min(wire::MAX_BATCH_TRANSITIONS as u64);
+    c.rejected += claimed;
+    *c.rejected_by_reason.entry(e.reason().to_string()).or_default() += 1;
+    if let Some(a) = c.actors.get_mut(&actor_id) {
+        a.transitions_rejected += claimed;
+        a.last_error = Some(e.to_string());
+    }
+    tracing::warn!(actor_id, error = %e, "refused a batch");
 }
 
 #[cfg(test)]
