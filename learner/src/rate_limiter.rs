@@ -3,6 +3,11 @@
 //! and ingestion waits when the data is more than `max_steps_ahead` steps ahead of training.
 //! Ingestion waiting is what pushes back on the actors: the gRPC handler stops reading, HTTP/2
 //! flow control fills, and the actors' sends block.
+//!
+//! At the end of the step budget ingestion stops waiting ([`RateLimiter::stop_ingest`]: what
+//! actors still have in flight goes in at once) while the trainer goes on until it has done
+//! every update the ratio allows for what was inserted ([`RateLimiter::is_paid`]): a run of N
+//! steps ends with ⌊(N − learning_starts)·ratio⌋ updates however far ingestion had run ahead.
 
 use std::sync::{Condvar, Mutex};
 use std::time::Duration;
@@ -13,6 +18,8 @@ struct State {
     inserted: u64,
     updates: u64,
     closed: bool,
+    /// Ingestion no longer waits (the budget is reached); the trainer still may update.
+    ingest_stopped: bool,
 }
 
 /// What [`RateLimiter::pressure`] reports.
@@ -83,7 +90,7 @@ impl RateLimiter {
         loop {
             {
                 let s = self.state.lock().expect("rate limiter lock");
-                if s.closed || self.may_insert(s.inserted, s.updates) {
+                if s.closed || s.ingest_stopped || self.may_insert(s.inserted, s.updates) {
                     return;
                 }
             }
@@ -100,7 +107,9 @@ impl RateLimiter {
         let s = self.state.lock().expect("rate limiter lock");
         Pressure {
             updates_owed: self.updates_allowed(s.inserted).saturating_sub(s.updates),
-            ingest_blocked: !s.closed && !self.may_insert(s.inserted, s.updates),
+            ingest_blocked: !s.closed
+                && !s.ingest_stopped
+                && !self.may_insert(s.inserted, s.updates),
             closed: s.closed,
         }
     }
@@ -146,6 +155,21 @@ impl RateLimiter {
         self.trainer_wakeup.notify_all();
         let u = s.updates;
         self.updates_tx.send_replace(u);
+    }
+
+    /// The end of the step budget: ingestion stops waiting for the trainer (waiters are
+    /// released), and the trainer goes on paying the updates the ratio owes.
+    pub fn stop_ingest(&self) {
+        let mut s = self.state.lock().expect("rate limiter lock");
+        s.ingest_stopped = true;
+        let u = s.updates;
+        self.updates_tx.send_replace(u);
+    }
+
+    /// Every update the ratio allows for what was inserted is done.
+    pub fn is_paid(&self) -> bool {
+        let s = self.state.lock().expect("rate limiter lock");
+        s.updates >= self.updates_allowed(s.inserted)
     }
 
     /// True once closed.
@@ -208,5 +232,29 @@ mod tests {
         };
         rl.close();
         tokio::time::timeout(Duration::from_secs(5), waiter).await.unwrap().unwrap();
+    }
+
+    #[tokio::test]
+    async fn after_the_budget_ingestion_goes_in_and_the_trainer_pays_what_it_owes() {
+        let rl = std::sync::Arc::new(RateLimiter::new(0.5, 10, 4));
+        rl.inserted(14);
+        let waiter = {
+            let rl = rl.clone();
+            tokio::spawn(async move { rl.wait_to_insert().await })
+        };
+        tokio::task::yield_now().await;
+        assert!(!waiter.is_finished(), "14 steps, no updates: 4 ahead");
+        rl.stop_ingest();
+        tokio::time::timeout(Duration::from_secs(5), waiter).await.unwrap().unwrap();
+        rl.inserted(6);
+        // (20 - 10 + 1) * 0.5 = 5 updates owed, and the trainer may do them.
+        assert!(!rl.is_paid());
+        for _ in 0..5 {
+            assert!(rl.wait_to_update(Duration::from_millis(1)));
+            rl.updated();
+        }
+        assert!(rl.is_paid());
+        assert!(!rl.wait_to_update(Duration::from_millis(1)));
+        assert!(!rl.pressure().ingest_blocked);
     }
 }

@@ -156,9 +156,10 @@ pub async fn run(
 
     // Until the budget is reached or we are told to stop.
     let done = state.done_signal();
-    let interrupted = tokio::select! {
+    tokio::pin!(shutdown);
+    let mut interrupted = tokio::select! {
         () = done.cancelled() => false,
-        () = shutdown => true,
+        () = &mut shutdown => true,
     };
     if interrupted {
         tracing::info!("shutdown requested; telling actors to stop");
@@ -168,6 +169,29 @@ pub async fn run(
     let deadline = Instant::now() + ACTOR_DRAIN_TIMEOUT;
     while state.status().actors.iter().any(|a| a.connected) && Instant::now() < deadline {
         tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    // The budget keeps the replay ratio: ingestion may have run `learner.max_steps_ahead`
+    // ahead of training, and those updates are owed before the run ends.
+    if !interrupted {
+        let (_, from) = state.limiter().counters();
+        let owed = state.limiter().pressure().updates_owed;
+        if owed > 0 {
+            tracing::info!(owed, "budget reached; training the updates the replay ratio owes");
+        }
+        while !state.limiter().is_paid() && !trainer.is_finished() {
+            tokio::select! {
+                () = tokio::time::sleep(Duration::from_millis(50)) => {}
+                () = &mut shutdown => {
+                    tracing::info!("shutdown requested; the owed updates are not all done");
+                    interrupted = true;
+                    break;
+                }
+            }
+        }
+        let (_, to) = state.limiter().counters();
+        if owed > 0 && !interrupted {
+            tracing::info!(updates = to - from, "owed updates done");
+        }
     }
     state.begin_shutdown();
     let (learner, sample_rng) = tokio::task::spawn_blocking(move || trainer.join())

@@ -184,6 +184,11 @@ pub struct LearnerConfig {
     pub publish_every_updates: u64,
     /// A checkpoint is written every this many updates (and at the end of the run).
     pub checkpoint_every_updates: u64,
+    /// A checkpoint is also written once this many seconds have passed since the last one
+    /// (or the start) and training has moved since, so a learner killed early in a run, long
+    /// before `checkpoint_every_updates`, resumes from one at most this old. 0: by updates
+    /// only.
+    pub checkpoint_every_s: f64,
     /// How many environment steps ingestion may run ahead of what the replay ratio allows
     /// before the learner stops reading transitions (backpressure to the actors).
     pub max_steps_ahead: u64,
@@ -214,6 +219,7 @@ impl Default for LearnerConfig {
         Self {
             publish_every_updates: 50,
             checkpoint_every_updates: 10_000,
+            checkpoint_every_s: 300.0,
             max_steps_ahead: 2_000,
             threads: 1,
             eval_every_updates: 2_000,
@@ -496,6 +502,9 @@ impl Config {
         }
         if le.checkpoint_every_updates == 0 {
             return Err(bad("learner.checkpoint_every_updates", "must be at least 1"));
+        }
+        if !(le.checkpoint_every_s.is_finite() && le.checkpoint_every_s >= 0.0) {
+            return Err(bad("learner.checkpoint_every_s", "must be 0 (off) or a positive time"));
         }
         // Below 0.1 s the watchdog's sampling (a fifth of it) would cost more than it tells.
         if !(le.heartbeat_s.is_finite() && le.heartbeat_s >= 0.1) {

@@ -480,9 +480,10 @@ impl LearnerState {
                 );
             }
             self.done.cancel();
-            // Training ends with the budget; what actors still have in flight is accepted
-            // without waiting, so they can flush and leave.
-            self.limiter.close();
+            // Ingestion ends with the budget: what actors still have in flight is accepted
+            // without waiting, so they can flush and leave. Training goes on until it has
+            // done the updates the ratio owes for what came in (see `run`).
+            self.limiter.stop_ingest();
         }
         let warmup = c.episodes < self.cfg.warmup.pid_episodes;
         let (stage, room, done) = (c.curriculum.stage(), c.curriculum.room().to_string(), c.done);
