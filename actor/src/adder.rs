@@ -15,9 +15,11 @@
 //! loop calls next. The learner refuses a batch whose reports its transitions do not back
 //! (`dvnav_link::consistency`).
 
+use crate::credits::Credits;
 use dvnav_link::core::{Adder, BatchWriter, EpisodeStats};
 use dvnav_link::wire::EncodedBatch;
 use dvnav_sim::obs::ACTION_DIM;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
 
@@ -29,6 +31,9 @@ pub struct BatchingAdder {
     max_delay: Duration,
     /// When the batch being filled got its first transition or episode.
     opened: Option<Instant>,
+    /// Batches that may await an acknowledgement; one is taken per batch, at its first
+    /// transition (see [`Credits`]).
+    credits: Option<Arc<Credits>>,
     /// Transitions handed to the stream.
     pub handed_over: u64,
 }
@@ -48,8 +53,17 @@ impl BatchingAdder {
             tx,
             max_delay,
             opened: None,
+            credits: None,
             handed_over: 0,
         }
+    }
+
+    /// Starts each batch only with a credit from `credits`: the loop blocks before the
+    /// batch's first transition while `actor.max_batches_in_flight` batches await an
+    /// acknowledgement.
+    pub fn with_credits(mut self, credits: Arc<Credits>) -> Self {
+        self.credits = Some(credits);
+        self
     }
 
     /// Notes the batch's first content, and whether it is due: full, or open for `max_delay`.
@@ -88,6 +102,11 @@ impl Adder for BatchingAdder {
         truncated: bool,
         policy_version: u64,
     ) -> anyhow::Result<()> {
+        if self.writer.is_empty()
+            && let Some(c) = &self.credits
+        {
+            c.take()?;
+        }
         self.writer.add(env, action, reward, next_obs, terminated, truncated, policy_version)?;
         // An episode's last step waits for its report (see the module docs).
         if self.due() && !(terminated || truncated) {
@@ -135,6 +154,27 @@ mod tests {
         add(&mut adder, 1);
         assert!(rx.try_recv().is_err());
         assert_eq!(adder.handed_over, 12);
+    }
+
+    #[test]
+    fn the_next_batch_starts_only_once_the_last_is_acknowledged() {
+        let (tx, mut rx) = mpsc::channel(16);
+        let credits = Arc::new(Credits::new(1));
+        let mut adder =
+            BatchingAdder::new(4, 4, Duration::from_secs(60), tx).with_credits(credits.clone());
+        adder.add_first(0, &[0.5; 4]).unwrap();
+        add(&mut adder, 4);
+        assert_eq!(rx.try_recv().unwrap().len(), 4, "the first batch went");
+        // Its acknowledgement has not come: the loop blocks before the next transition.
+        let next = std::thread::spawn(move || {
+            add(&mut adder, 1);
+            adder
+        });
+        std::thread::sleep(Duration::from_millis(100));
+        assert!(!next.is_finished(), "no transition of a second batch before the ack");
+        credits.give(1);
+        let adder = next.join().unwrap();
+        assert_eq!(adder.writer.len(), 1);
     }
 
     #[test]

@@ -14,6 +14,7 @@
 //! taking batches from its adder, so the environment loop waits instead of buffering without
 //! limit, and retries with exponential backoff (100 ms doubling to 5 s) for as long as it takes.
 
+use crate::credits::Credits;
 use dvnav_config::Config;
 use dvnav_link::core::Variables;
 use dvnav_link::wire::EncodedBatch;
@@ -335,11 +336,14 @@ impl Outbox {
         self.next_sequence = expected + self.pending.len() as u64;
     }
 
-    /// Forgets every batch up to and including `sequence` (acknowledgements come in order).
-    pub fn ack(&mut self, sequence: u64) {
+    /// Forgets every batch up to and including `sequence` (acknowledgements come in order);
+    /// returns how many.
+    pub fn ack(&mut self, sequence: u64) -> usize {
+        let before = self.pending.len();
         while self.pending.front().is_some_and(|(s, _)| *s <= sequence) {
             self.pending.pop_front();
         }
+        before - self.pending.len()
     }
 
     /// Batches waiting for an acknowledgement.
@@ -391,6 +395,7 @@ pub struct LinkCounters {
 /// are never contended, they only make the future `Send`.
 struct Session<'a> {
     outbox: &'a Mutex<Outbox>,
+    credits: &'a Credits,
     counters: &'a Mutex<LinkCounters>,
     input_closed: &'a Mutex<bool>,
 }
@@ -438,7 +443,8 @@ impl Session<'_> {
         };
         let receive = async {
             while let Some(ack) = acks.message().await.map_err(status)? {
-                self.outbox.lock().expect("link lock").ack(ack.sequence);
+                let done = self.outbox.lock().expect("link lock").ack(ack.sequence);
+                self.credits.give(done);
                 let mut c = self.counters.lock().expect("link lock");
                 c.batches_acked += 1;
                 c.transitions_acked += ack.accepted as u64;
@@ -480,18 +486,35 @@ pub struct LinkOptions {
 /// Runs the link until the adder closes `batches` and the learner has acknowledged everything,
 /// reconnecting whenever the learner goes away. Gives up only after a stop (local, `stop`, or
 /// from the learner) with no learner for [`GIVE_UP_AFTER_STOP`].
+/// `credits` go back to the adder as the learner acknowledges batches, and are closed when the
+/// link ends.
+#[allow(clippy::too_many_arguments)]
 pub async fn run_link(
     opts: LinkOptions,
     mut client: Client,
     first: Registered,
     mut batches: mpsc::Receiver<EncodedBatch>,
+    credits: Arc<Credits>,
     variables: watch::Sender<Option<Arc<Variables>>>,
     stop: CancellationToken,
 ) -> LinkCounters {
+    // Whatever ends the link, a loop waiting for a credit is released.
+    struct CloseOnDrop<'a>(&'a Credits);
+    impl Drop for CloseOnDrop<'_> {
+        fn drop(&mut self) {
+            self.0.close();
+        }
+    }
+    let _close = CloseOnDrop(&credits);
     let outbox = Mutex::new(Outbox::new(first.next_sequence));
     let counters = Mutex::new(LinkCounters::default());
     let input_closed = Mutex::new(false);
-    let session = Session { outbox: &outbox, counters: &counters, input_closed: &input_closed };
+    let session = Session {
+        outbox: &outbox,
+        credits: &credits,
+        counters: &counters,
+        input_closed: &input_closed,
+    };
     let mut reg = first;
     loop {
         let follower =

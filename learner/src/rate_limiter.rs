@@ -6,8 +6,11 @@
 //!
 //! At the end of the step budget ingestion stops waiting ([`RateLimiter::stop_ingest`]: what
 //! actors still have in flight goes in at once) while the trainer goes on until it has done
-//! every update the ratio allows for what was inserted ([`RateLimiter::is_paid`]): a run of N
-//! steps ends with ⌊(N − learning_starts)·ratio⌋ updates however far ingestion had run ahead.
+//! every update the ratio allows for what was inserted up to the budget
+//! ([`RateLimiter::is_paid`]): a run whose budget was reached at N steps ends with
+//! ⌊(N − learning_starts + 1)·ratio⌋ updates however far ingestion had run ahead. What arrives
+//! after (the actors' batches in flight) goes into the buffer but owes no updates, so the end
+//! of a run takes at most the `max_steps_ahead` steps' worth of updates.
 
 use std::sync::{Condvar, Mutex};
 use std::time::Duration;
@@ -20,6 +23,8 @@ struct State {
     closed: bool,
     /// Ingestion no longer waits (the budget is reached); the trainer still may update.
     ingest_stopped: bool,
+    /// Transitions inserted when ingestion stopped: updates are owed for these only.
+    owed_for: Option<u64>,
 }
 
 /// What [`RateLimiter::pressure`] reports.
@@ -66,6 +71,11 @@ impl RateLimiter {
         self.updates_tx.send_replace(updates);
     }
 
+    /// Updates allowed now: for what was inserted, up to the budget once ingestion stopped.
+    fn allowed(&self, s: &State) -> u64 {
+        self.updates_allowed(s.owed_for.map_or(s.inserted, |n| n.min(s.inserted)))
+    }
+
     /// Updates allowed once `inserted` transitions have arrived.
     pub fn updates_allowed(&self, inserted: u64) -> u64 {
         if inserted < self.learning_starts {
@@ -106,7 +116,7 @@ impl RateLimiter {
     pub fn pressure(&self) -> Pressure {
         let s = self.state.lock().expect("rate limiter lock");
         Pressure {
-            updates_owed: self.updates_allowed(s.inserted).saturating_sub(s.updates),
+            updates_owed: self.allowed(&s).saturating_sub(s.updates),
             ingest_blocked: !s.closed
                 && !s.ingest_stopped
                 && !self.may_insert(s.inserted, s.updates),
@@ -129,13 +139,13 @@ impl RateLimiter {
             if s.closed {
                 return false;
             }
-            if s.updates < self.updates_allowed(s.inserted) {
+            if s.updates < self.allowed(&s) {
                 return true;
             }
             let (guard, timeout) =
                 self.trainer_wakeup.wait_timeout(s, tick).expect("rate limiter lock");
             s = guard;
-            if timeout.timed_out() && !s.closed && s.updates >= self.updates_allowed(s.inserted) {
+            if timeout.timed_out() && !s.closed && s.updates >= self.allowed(&s) {
                 return false;
             }
         }
@@ -162,6 +172,8 @@ impl RateLimiter {
     pub fn stop_ingest(&self) {
         let mut s = self.state.lock().expect("rate limiter lock");
         s.ingest_stopped = true;
+        let inserted = s.inserted;
+        s.owed_for.get_or_insert(inserted);
         let u = s.updates;
         self.updates_tx.send_replace(u);
     }
@@ -169,7 +181,7 @@ impl RateLimiter {
     /// Every update the ratio allows for what was inserted is done.
     pub fn is_paid(&self) -> bool {
         let s = self.state.lock().expect("rate limiter lock");
-        s.updates >= self.updates_allowed(s.inserted)
+        s.updates >= self.allowed(&s)
     }
 
     /// True once closed.
@@ -244,10 +256,13 @@ mod tests {
         };
         tokio::task::yield_now().await;
         assert!(!waiter.is_finished(), "14 steps, no updates: 4 ahead");
+        rl.inserted(6);
+        // The batch that reaches the budget: (20 - 10 + 1) * 0.5 = 5 updates owed.
         rl.stop_ingest();
         tokio::time::timeout(Duration::from_secs(5), waiter).await.unwrap().unwrap();
-        rl.inserted(6);
-        // (20 - 10 + 1) * 0.5 = 5 updates owed, and the trainer may do them.
+        // What was in flight goes in, and owes nothing more.
+        rl.inserted(100);
+        assert_eq!(rl.pressure().updates_owed, 5);
         assert!(!rl.is_paid());
         for _ in 0..5 {
             assert!(rl.wait_to_update(Duration::from_millis(1)));

@@ -240,11 +240,16 @@ pub struct ActorConfig {
     pub batch_transitions: usize,
     /// Batches that may wait for the network before the environment loop blocks.
     pub send_queue_batches: usize,
+    /// Batches handed to the learner and not yet acknowledged before the environment loop
+    /// blocks, before it starts the next one: fresh data (the policy lag of what the learner
+    /// inserts) against actor idle time. 1: an actor acts its next batch once the learner has
+    /// taken the last.
+    pub max_batches_in_flight: usize,
 }
 
 impl Default for ActorConfig {
     fn default() -> Self {
-        Self { envs: 4, batch_transitions: 128, send_queue_batches: 4 }
+        Self { envs: 4, batch_transitions: 128, send_queue_batches: 4, max_batches_in_flight: 1 }
     }
 }
 
@@ -523,6 +528,9 @@ impl Config {
         }
         if a.send_queue_batches == 0 {
             return Err(bad("actor.send_queue_batches", "must be at least 1"));
+        }
+        if a.max_batches_in_flight == 0 {
+            return Err(bad("actor.max_batches_in_flight", "must be at least 1"));
         }
         if le.max_steps_ahead < a.batch_transitions as u64 {
             return Err(bad(

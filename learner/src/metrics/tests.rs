@@ -100,6 +100,10 @@ async fn prometheus_text_has_every_headline_metric() {
     assert_eq!(value(&text, "dvnav_policy_lag_versions_mean"), 2.0);
     assert_eq!(value(&text, "dvnav_policy_lag_versions_max"), 3.0);
     assert_eq!(value(&text, "dvnav_policy_lag_versions_count"), 6.0);
+    // Percentiles over the run: 0,0,3,3,3,3.
+    let q =
+        |p: &str| value(&text, &format!("dvnav_policy_lag_versions_quantile{{quantile=\"{p}\"}}"));
+    assert_eq!((q("0.5"), q("0.95"), q("0.99")), (3.0, 3.0, 3.0));
     assert_eq!(value(&text, "dvnav_stage_success_rate{stage=\"0\",room=\"env0\"}"), 0.5);
     assert_eq!(value(&text, "dvnav_stage_success_rate{stage=\"1\",room=\"env1\"}"), 1.0);
     assert_eq!(value(&text, "dvnav_actor_connected{actor=\"a-\\\"1\\\"\"}"), 1.0);

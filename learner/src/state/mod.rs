@@ -27,7 +27,7 @@ pub mod sessions;
 pub mod status;
 
 pub use error::LearnerError;
-pub use live::{LagStats, LiveMetrics, LiveSnapshot, StageStats};
+pub use live::{LagHistogram, LagPercentiles, LagStats, LiveMetrics, LiveSnapshot, StageStats};
 pub use saved::SavedState;
 pub use sessions::Sessions;
 pub use status::{Ack, ActorCounters, Progress, Readiness, Registration, Stall, StatusSnapshot};
