@@ -25,6 +25,8 @@ pub struct LearnerOptions {
     pub out_dir: PathBuf,
     /// Shared token actors must present, if any.
     pub token: Option<String>,
+    /// Per-actor tokens (`--actor-tokens`), if any.
+    pub actor_tokens: Option<crate::actor_tokens::ActorTokens>,
     /// Run id (defaults to the directory name).
     pub run_id: Option<String>,
     /// Continue from the newest complete checkpoint in `out_dir` (`--resume`).
@@ -96,12 +98,10 @@ pub async fn run(
     let nets = SacNetworks::new(&cfg, cfg.run.seed, &device)?;
     let mut learner = SacLearner::new(nets, cfg.sac.clone(), device, cfg.run.seed ^ 0x0005_ac00)?;
     let mut sample_rng = trainer::sample_rng(cfg.run.seed);
-    let state = Arc::new(LearnerState::new(
-        cfg.clone(),
-        run_id,
-        opts.token.clone(),
-        learner.policy_safetensors()?,
-    ));
+    let state = Arc::new(
+        LearnerState::new(cfg.clone(), run_id, opts.token.clone(), learner.policy_safetensors()?)
+            .with_actor_tokens(opts.actor_tokens.clone()),
+    );
     if opts.resume {
         let ckpt = Checkpoint::latest(&opts.out_dir)?;
         sample_rng = ckpt.resume(&mut learner, &state)?.unwrap_or(sample_rng);

@@ -16,7 +16,9 @@ impl From<LearnerError> for Status {
         let msg = e.to_string();
         match e {
             LearnerError::ProtocolMismatch { .. } => Status::failed_precondition(msg),
-            LearnerError::Unauthenticated => Status::unauthenticated(msg),
+            LearnerError::Unauthenticated | LearnerError::ActorToken(_) => {
+                Status::unauthenticated(msg)
+            }
             LearnerError::UnknownActor(_) => Status::invalid_argument(msg),
             LearnerError::NoSession | LearnerError::UnknownSession => Status::unauthenticated(msg),
             LearnerError::WrongActor { .. } => Status::permission_denied(msg),
@@ -136,8 +138,13 @@ impl Learner for LearnerService {
         req: Request<pb::RegisterRequest>,
     ) -> Result<Response<pb::RegisterReply>, Status> {
         self.authorize(&req)?;
+        let presented = dvnav_tls::auth::bearer_token(req.metadata()).map(str::to_string);
         let r = req.into_inner();
-        let reg = self.state.register(&r.actor_name, r.protocol_version)?;
+        let reg = self.state.register_presenting(
+            &r.actor_name,
+            r.protocol_version,
+            presented.as_deref(),
+        )?;
         let cfg = self.state.config();
         Ok(Response::new(pb::RegisterReply {
             actor_id: reg.actor_id,

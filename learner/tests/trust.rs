@@ -5,12 +5,14 @@
 //! buffer, the curriculum or the metric labels, and the real actor's data is not lost.
 
 use dvnav_config::Config;
+use dvnav_learner::actor_tokens::ActorTokens;
 use dvnav_learner::metrics::{Sampler, render_prometheus};
+use dvnav_learner::state::LearnerState;
 use dvnav_link::core::{EpisodeStats, TransitionBatch};
 use dvnav_link::wire::batch_to_proto;
 use dvnav_proto::{PROTOCOL_VERSION, RegisterReply, StatusRequest, VariablesRequest};
 use dvnav_sim::Outcome;
-use support::{Server, batch, bound_iter, register, start, start_with};
+use support::{Server, batch, bound_iter, register, serve, start, start_with};
 use tonic::Code;
 
 mod support;
@@ -213,5 +215,40 @@ async fn refused_tokens_are_counted_as_unauthenticated() {
     // The right token still works.
     let ok = c.register(with(Some("s3cret"), register("a", PROTOCOL_VERSION))).await;
     assert!(ok.is_ok());
+    s.shutdown().await;
+}
+
+#[tokio::test]
+async fn with_per_actor_tokens_a_name_registers_only_with_its_own() {
+    let mut cfg = Config::default();
+    cfg.run.steps = 1_000;
+    let tokens = ActorTokens::parse("a ta\nb tb\n").unwrap();
+    let state =
+        LearnerState::new(cfg, "t".into(), None, vec![1, 2, 3]).with_actor_tokens(Some(tokens));
+    let s = serve(state, dvnav_proto::MAX_MESSAGE_BYTES).await;
+    let mut c = s.client().await;
+    let code = |r: Result<tonic::Response<RegisterReply>, tonic::Status>| r.unwrap_err().code();
+    // B's token for A; a listed token for an unlisted name (no shared token); no token at all.
+    assert_eq!(
+        code(c.register(with(Some("tb"), register("a", PROTOCOL_VERSION))).await),
+        Code::Unauthenticated
+    );
+    assert_eq!(
+        code(c.register(with(Some("ta"), register("c", PROTOCOL_VERSION))).await),
+        Code::Unauthenticated
+    );
+    assert_eq!(
+        code(c.register(with(None, register("a", PROTOCOL_VERSION))).await),
+        Code::Unauthenticated
+    );
+    assert_eq!((reason(&s, "actor_token"), reason(&s, "unauthenticated")), (2, 1));
+    assert!(s.state.status().actors.is_empty(), "no refused name was registered");
+    // Each with its own.
+    let a =
+        c.register(with(Some("ta"), register("a", PROTOCOL_VERSION))).await.unwrap().into_inner();
+    let b =
+        c.register(with(Some("tb"), register("b", PROTOCOL_VERSION))).await.unwrap().into_inner();
+    assert_ne!(a.actor_id, b.actor_id);
+    assert!(c.status(with(Some("tb"), StatusRequest {})).await.is_ok());
     s.shutdown().await;
 }

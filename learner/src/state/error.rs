@@ -17,6 +17,10 @@ pub enum LearnerError {
     /// Missing or wrong shared token.
     #[error("missing or wrong access token")]
     Unauthenticated,
+    /// With per-actor tokens: a name registered without its own token (or, for a name the
+    /// file does not list, without the shared one).
+    #[error("actor {0:?} must present its own token (--actor-tokens)")]
+    ActorToken(String),
     /// A batch from an actor id that never registered.
     #[error("unknown actor id {0}; register first")]
     UnknownActor(u32),
@@ -61,6 +65,7 @@ impl LearnerError {
         match self {
             LearnerError::ProtocolMismatch { .. } => "protocol_version",
             LearnerError::Unauthenticated => "unauthenticated",
+            LearnerError::ActorToken(_) => "actor_token",
             LearnerError::UnknownActor(_) => "unknown_actor",
             LearnerError::NoSession => "session_missing",
             LearnerError::UnknownSession => "session_unknown",

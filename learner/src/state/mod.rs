@@ -32,6 +32,7 @@ pub use saved::SavedState;
 pub use sessions::Sessions;
 pub use status::{Ack, ActorCounters, Progress, Readiness, Registration, Stall, StatusSnapshot};
 
+use crate::actor_tokens::ActorTokens;
 use crate::curriculum::{Curriculum, CurriculumState};
 use crate::rate_limiter::RateLimiter;
 use crate::replay::{Batch, ObsCodec, ReplayBuffer};
@@ -72,6 +73,7 @@ pub struct LearnerState {
     config_toml: String,
     run_id: String,
     token: Option<String>,
+    actor_tokens: Option<ActorTokens>,
     episode_bounds: EpisodeBounds,
     replay: Mutex<ReplayBuffer>,
     limiter: RateLimiter,
@@ -130,6 +132,7 @@ impl LearnerState {
             cfg,
             run_id,
             token,
+            actor_tokens: None,
             variables,
             done: CancellationToken::new(),
             shutdown: CancellationToken::new(),
@@ -137,6 +140,13 @@ impl LearnerState {
             stalled: Mutex::new(Vec::new()),
             serving: AtomicBool::new(false),
         }
+    }
+
+    /// Per-actor tokens (`--actor-tokens`): a listed name registers only with its own token
+    /// (see [`ActorTokens`]).
+    pub fn with_actor_tokens(mut self, tokens: Option<ActorTokens>) -> Self {
+        self.actor_tokens = tokens;
+        self
     }
 
     /// The run's configuration.
@@ -167,7 +177,16 @@ impl LearnerState {
     /// Checks the shared token, when one is configured; a refusal is counted under
     /// `unauthenticated`.
     pub fn authorize(&self, presented: Option<&str>) -> Result<(), LearnerError> {
-        if dvnav_tls::auth::token_accepted(self.token.as_deref(), presented) {
+        let accepted = match &self.actor_tokens {
+            None => dvnav_tls::auth::token_accepted(self.token.as_deref(), presented),
+            // With per-actor tokens nothing is open: the shared token or a listed one.
+            Some(t) => {
+                let shared = self.token.is_some()
+                    && dvnav_tls::auth::token_accepted(self.token.as_deref(), presented);
+                shared | t.accepts_any(presented)
+            }
+        };
+        if accepted {
             Ok(())
         } else {
             let e = LearnerError::Unauthenticated;
@@ -200,13 +219,25 @@ impl LearnerState {
         }
     }
 
-    /// Registers an actor.
+    /// Registers an actor that presented no token of its own (in process; see
+    /// [`Self::register_presenting`]).
     pub fn register(
         &self,
         name: &str,
         protocol_version: u32,
     ) -> Result<Registration, LearnerError> {
-        self.register_checked(name, protocol_version).inspect_err(|e| {
+        self.register_presenting(name, protocol_version, None)
+    }
+
+    /// Registers an actor that presented the bearer token `presented`: with per-actor tokens a
+    /// listed name must have presented its own, a name not listed the shared one.
+    pub fn register_presenting(
+        &self,
+        name: &str,
+        protocol_version: u32,
+        presented: Option<&str>,
+    ) -> Result<Registration, LearnerError> {
+        self.register_checked(name, protocol_version, presented).inspect_err(|e| {
             self.count_rejection(None, e.reason(), &e.to_string());
             tracing::warn!(name, error = %e, "refused a registration");
         })
@@ -216,6 +247,7 @@ impl LearnerState {
         &self,
         name: &str,
         protocol_version: u32,
+        presented: Option<&str>,
     ) -> Result<Registration, LearnerError> {
         if protocol_version != dvnav_proto::PROTOCOL_VERSION {
             return Err(LearnerError::ProtocolMismatch {
@@ -225,6 +257,18 @@ impl LearnerState {
         }
         if name.is_empty() || name.len() > 128 {
             return Err(LearnerError::InvalidRequest("actor_name must be 1 to 128 bytes".into()));
+        }
+        if let Some(t) = &self.actor_tokens {
+            let own = match t.token_of(name) {
+                Some(expected) => dvnav_tls::auth::token_accepted(Some(expected), presented),
+                None => {
+                    self.token.is_some()
+                        && dvnav_tls::auth::token_accepted(self.token.as_deref(), presented)
+                }
+            };
+            if !own {
+                return Err(LearnerError::ActorToken(name.to_string()));
+            }
         }
         if self.shutdown.is_cancelled() {
             return Err(LearnerError::ShuttingDown);

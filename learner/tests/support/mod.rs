@@ -35,8 +35,13 @@ pub async fn start_with(cfg: Config, token: Option<&str>) -> Server {
 
 /// Serves a fresh state for `cfg` with a message-size limit.
 pub async fn start_limited(cfg: Config, token: Option<&str>, max_message_bytes: usize) -> Server {
-    let state =
-        Arc::new(LearnerState::new(cfg, "t".into(), token.map(String::from), vec![1, 2, 3]));
+    let state = LearnerState::new(cfg, "t".into(), token.map(String::from), vec![1, 2, 3]);
+    serve(state, max_message_bytes).await
+}
+
+/// Serves `state`.
+pub async fn serve(state: LearnerState, max_message_bytes: usize) -> Server {
+    let state = Arc::new(state);
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let url = format!("http://{}", listener.local_addr().unwrap());
     let (tx, rx) = tokio::sync::oneshot::channel::<()>();
