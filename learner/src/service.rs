@@ -25,6 +25,7 @@ impl From<LearnerError> for Status {
             LearnerError::SequenceGap { .. } => Status::failed_precondition(msg),
             LearnerError::Malformed(_) => Status::invalid_argument(msg),
             LearnerError::InvalidRequest(_) => Status::invalid_argument(msg),
+            LearnerError::TooManyActors(_) => Status::resource_exhausted(msg),
             LearnerError::ShuttingDown => Status::unavailable(msg),
         }
     }

@@ -184,6 +184,11 @@ pub struct LearnerConfig {
     pub publish_every_updates: u64,
     /// A checkpoint is written every this many updates (and at the end of the run).
     pub checkpoint_every_updates: u64,
+    /// Distinct actor names the learner registers over a run; one more is refused
+    /// (RESOURCE_EXHAUSTED). Bounds the per-actor counters and the `actor` label values of
+    /// `/metrics` against a caller that registers name after name. `dvnav train` uses one name
+    /// per process, restarts included.
+    pub max_actor_names: usize,
     /// A checkpoint is also written once this many seconds have passed since the last one
     /// (or the start) and training has moved since, so a learner killed early in a run, long
     /// before `checkpoint_every_updates`, resumes from one at most this old. 0: by updates
@@ -220,6 +225,7 @@ impl Default for LearnerConfig {
             publish_every_updates: 50,
             checkpoint_every_updates: 10_000,
             checkpoint_every_s: 300.0,
+            max_actor_names: 1024,
             max_steps_ahead: 2_000,
             threads: 1,
             eval_every_updates: 2_000,
@@ -507,6 +513,9 @@ impl Config {
         }
         if le.checkpoint_every_updates == 0 {
             return Err(bad("learner.checkpoint_every_updates", "must be at least 1"));
+        }
+        if le.max_actor_names == 0 {
+            return Err(bad("learner.max_actor_names", "must be at least 1"));
         }
         if !(le.checkpoint_every_s.is_finite() && le.checkpoint_every_s >= 0.0) {
             return Err(bad("learner.checkpoint_every_s", "must be 0 (off) or a positive time"));

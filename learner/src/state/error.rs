@@ -53,6 +53,9 @@ pub enum LearnerError {
     /// An invalid request field.
     #[error("invalid request: {0}")]
     InvalidRequest(String),
+    /// A new actor name past `learner.max_actor_names`.
+    #[error("{0} actor names are registered already (learner.max_actor_names)")]
+    TooManyActors(usize),
     /// The learner is shutting down.
     #[error("the learner is shutting down")]
     ShuttingDown,
@@ -73,6 +76,7 @@ impl LearnerError {
             LearnerError::SequenceGap { .. } => "sequence_gap",
             LearnerError::Malformed(e) => e.field,
             LearnerError::InvalidRequest(_) => "invalid_request",
+            LearnerError::TooManyActors(_) => "too_many_actors",
             LearnerError::ShuttingDown => "shutting_down",
         }
     }

@@ -276,6 +276,10 @@ impl LearnerState {
         let mut c = self.counters.lock().expect("counters lock");
         // An actor that comes back under the same name keeps its id and counters.
         let existing = c.actors.values().find(|a| a.name == name).map(|a| a.actor_id);
+        let limit = self.cfg.learner.max_actor_names;
+        if existing.is_none() && c.actors.len() >= limit {
+            return Err(LearnerError::TooManyActors(limit));
+        }
         let actor_id = existing.unwrap_or_else(|| {
             let id = c.next_actor_id;
             c.next_actor_id += 1;

@@ -305,3 +305,19 @@ fn refuses_other_protocol_versions_and_wrong_tokens() {
     assert_ne!(a, b);
     assert_eq!(s.register("a", dvnav_proto::PROTOCOL_VERSION).unwrap().actor_id, a);
 }
+
+#[test]
+fn new_actor_names_stop_at_the_limit_and_known_ones_come_back() {
+    let mut cfg = small_config();
+    cfg.learner.max_actor_names = 2;
+    let s = LearnerState::new(cfg, "r".into(), None, vec![]);
+    let v = dvnav_proto::PROTOCOL_VERSION;
+    let a = s.register("a", v).unwrap().actor_id;
+    s.register("b", v).unwrap();
+    let e = s.register("c", v).unwrap_err();
+    assert!(matches!(e, LearnerError::TooManyActors(2)), "{e}");
+    assert_eq!(tonic::Status::from(e).code(), tonic::Code::ResourceExhausted);
+    assert_eq!(s.register("a", v).unwrap().actor_id, a, "a known name still registers");
+    let st = s.status();
+    assert_eq!((st.actors.len(), st.rejected_by_reason.get("too_many_actors")), (2, Some(&1)));
+}
