@@ -27,7 +27,9 @@ test-learning:
 
 # An independent reader of the MCAP episode logs: the Python `mcap` and `mcap-protobuf-support`
 # packages (in a venv under target/) decode every message of a fresh ~3 s run that logs every
-# episode (scripts/check_mcap.py). Skips, exit 0, when python3 with venv is not installed.
+# episode (scripts/check_mcap.py), then of a run whose actor-0 is SIGKILLed mid-run: its
+# unfinished files read as a stream, every complete episode in them decoded
+# (scripts/check_mcap_killed.sh). Skips, exit 0, when python3 with venv is not installed.
 PYTHON ?= python3
 # The checks below run target/debug/dvnav. Built with the workspace's test targets, so it has
 # the same features as `make test`'s (dev-dependencies such as tokio's test-util count) and is a
@@ -47,7 +49,8 @@ check-mcap:
 	rm -rf $(CHECK_RUN); \
 	./target/debug/dvnav train --actors 2 --config scripts/check_mcap.toml --out $(CHECK_RUN) --progress-every-s 60; \
 	./target/debug/dvnav inspect $(CHECK_RUN) --check | tail -n 1; \
-	$(PYENV)/bin/python scripts/check_mcap.py $(CHECK_RUN)
+	$(PYENV)/bin/python scripts/check_mcap.py $(CHECK_RUN); \
+	bash scripts/check_mcap_killed.sh ./target/debug/dvnav $(PYENV)/bin/python $(CHECK_RUN)-killed
 
 # deploy/ against the code (scripts/check_deploy.py): the Kubernetes manifests parse, every flag
 # they and the systemd units pass is in `dvnav learner/actor --help`, the probe paths are routed

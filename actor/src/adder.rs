@@ -9,10 +9,17 @@
 //! of the heartbeat interval), even part full: a slow actor still shows the learner it is alive and
 //! moving, so the watchdog can name one that stopped within a heartbeat (and the learner sees
 //! its transitions sooner).
+//!
+//! An episode's report goes in the batch that holds its last transition: a batch that comes
+//! due on an episode's last step waits for that episode's [`Adder::add_episode`], which the
+//! loop calls next. The learner refuses a batch whose reports its transitions do not back
+//! (`dvnav_link::consistency`).
 
+use crate::credits::Credits;
 use dvnav_link::core::{Adder, BatchWriter, EpisodeStats};
 use dvnav_link::wire::EncodedBatch;
 use dvnav_sim::obs::ACTION_DIM;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
 
@@ -24,6 +31,9 @@ pub struct BatchingAdder {
     max_delay: Duration,
     /// When the batch being filled got its first transition or episode.
     opened: Option<Instant>,
+    /// Batches that may await an acknowledgement; one is taken per batch, at its first
+    /// transition (see [`Credits`]).
+    credits: Option<Arc<Credits>>,
     /// Transitions handed to the stream.
     pub handed_over: u64,
 }
@@ -43,8 +53,17 @@ impl BatchingAdder {
             tx,
             max_delay,
             opened: None,
+            credits: None,
             handed_over: 0,
         }
+    }
+
+    /// Starts each batch only with a credit from `credits`: the loop blocks before the
+    /// batch's first transition while `actor.max_batches_in_flight` batches await an
+    /// acknowledgement.
+    pub fn with_credits(mut self, credits: Arc<Credits>) -> Self {
+        self.credits = Some(credits);
+        self
     }
 
     /// Notes the batch's first content, and whether it is due: full, or open for `max_delay`.
@@ -83,8 +102,14 @@ impl Adder for BatchingAdder {
         truncated: bool,
         policy_version: u64,
     ) -> anyhow::Result<()> {
+        if self.writer.is_empty()
+            && let Some(c) = &self.credits
+        {
+            c.take()?;
+        }
         self.writer.add(env, action, reward, next_obs, terminated, truncated, policy_version)?;
-        if self.due() {
+        // An episode's last step waits for its report (see the module docs).
+        if self.due() && !(terminated || truncated) {
             self.send()?;
         }
         Ok(())
@@ -92,7 +117,9 @@ impl Adder for BatchingAdder {
 
     fn add_episode(&mut self, stats: EpisodeStats) -> anyhow::Result<()> {
         self.writer.add_episode(stats);
-        self.opened.get_or_insert_with(Instant::now);
+        if self.due() {
+            self.send()?;
+        }
         Ok(())
     }
 
@@ -127,5 +154,56 @@ mod tests {
         add(&mut adder, 1);
         assert!(rx.try_recv().is_err());
         assert_eq!(adder.handed_over, 12);
+    }
+
+    #[test]
+    fn the_next_batch_starts_only_once_the_last_is_acknowledged() {
+        let (tx, mut rx) = mpsc::channel(16);
+        let credits = Arc::new(Credits::new(1));
+        let mut adder =
+            BatchingAdder::new(4, 4, Duration::from_secs(60), tx).with_credits(credits.clone());
+        adder.add_first(0, &[0.5; 4]).unwrap();
+        add(&mut adder, 4);
+        assert_eq!(rx.try_recv().unwrap().len(), 4, "the first batch went");
+        // Its acknowledgement has not come: the loop blocks before the next transition.
+        let next = std::thread::spawn(move || {
+            add(&mut adder, 1);
+            adder
+        });
+        std::thread::sleep(Duration::from_millis(100));
+        assert!(!next.is_finished(), "no transition of a second batch before the ack");
+        credits.give(1);
+        let adder = next.join().unwrap();
+        assert_eq!(adder.writer.len(), 1);
+    }
+
+    #[test]
+    fn an_episode_report_goes_with_its_last_transition() {
+        let (tx, mut rx) = mpsc::channel(16);
+        let mut adder = BatchingAdder::new(4, 4, Duration::from_secs(60), tx);
+        adder.add_first(0, &[0.5; 4]).unwrap();
+        add(&mut adder, 3);
+        // The fourth transition fills the batch and ends the episode.
+        adder.add(0, [0.1, 0.2], 10.0, &[0.7; 4], true, false, 1).unwrap();
+        assert!(rx.try_recv().is_err(), "the full batch waits for the episode's report");
+        let stats = EpisodeStats {
+            env_index: 0,
+            stage: 0,
+            room: "env0".into(),
+            outcome: dvnav_sim::Outcome::Success,
+            steps: 4,
+            episode_return: 13.0,
+            policy_version: 1,
+            warmup: false,
+        };
+        adder.add_episode(stats).unwrap();
+        let mut bytes = Vec::new();
+        rx.try_recv().unwrap().write(0, 0, &mut bytes);
+        let msg = dvnav_link::wire::batch_from_proto(
+            prost::Message::decode(bytes.as_slice()).unwrap(),
+            4,
+        )
+        .unwrap();
+        assert_eq!((msg.len(), msg.episodes.len(), msg.terminated[3]), (4, 1, true));
     }
 }

@@ -6,10 +6,15 @@
 //! stays in the [`Outbox`] until the learner acknowledges it, as the bytes the adder encoded
 //! ([`EncodedBatch`]). After a reconnect the unacknowledged batches are sent again, the same
 //! bytes under their numbers; a learner that had already inserted one answers
-//! `duplicate` and does not insert it twice. While the learner is unreachable the actor stops
+//! `duplicate` and does not insert it twice. A learner that does not know the batches pending
+//! (a restarted learner expects sequence 0 from a name it has not seen) gets them renumbered
+//! from the sequence it expects ([`Outbox::rebase`]): it refuses a number that skips ahead.
+//! Every stream presents the session credential of the latest registration
+//! ([`dvnav_link::wire::SESSION_METADATA`]). While the learner is unreachable the actor stops
 //! taking batches from its adder, so the environment loop waits instead of buffering without
 //! limit, and retries with exponential backoff (100 ms doubling to 5 s) for as long as it takes.
 
+use crate::credits::Credits;
 use dvnav_config::Config;
 use dvnav_link::core::Variables;
 use dvnav_link::wire::EncodedBatch;
@@ -101,11 +106,16 @@ impl Client {
 
     /// The `Transitions` call, as the generated stub makes it, but with [`OutgoingCodec`]: each
     /// batch's pre-encoded bytes are written as they are. The learner decodes the messages with
-    /// prost like any `TransitionBatch`.
+    /// prost like any `TransitionBatch`. The stream presents `session`, the credential of the
+    /// registration it speaks for.
     pub async fn transitions_encoded(
         &mut self,
+        session: &str,
         batches: impl Stream<Item = Outgoing> + Send + 'static,
     ) -> Result<tonic::Response<tonic::codec::Streaming<pb::BatchAck>>, tonic::Status> {
+        let credential: MetadataValue<Ascii> = session.parse().map_err(|_| {
+            tonic::Status::invalid_argument("the session credential is not a header value")
+        })?;
         self.grpc
             .ready()
             .await
@@ -113,6 +123,7 @@ impl Client {
         let path =
             tonic::codegen::http::uri::PathAndQuery::from_static("/dvnav.v1.Learner/Transitions");
         let mut req = tonic::Request::new(batches);
+        req.metadata_mut().insert(dvnav_link::wire::SESSION_METADATA, credential);
         req.extensions_mut().insert(tonic::GrpcMethod::new("dvnav.v1.Learner", "Transitions"));
         self.grpc.streaming(req, path, OutgoingCodec).await
     }
@@ -228,6 +239,8 @@ pub struct Registered {
     pub run_id: String,
     /// Where a fresh actor process starts numbering its batches.
     pub next_sequence: u64,
+    /// The credential its transition streams present.
+    pub session: String,
 }
 
 /// Registers `name` with the learner; `tls`: whether the connection is TLS (for the hint a
@@ -260,6 +273,7 @@ pub async fn register(client: &mut Client, name: &str, tls: bool) -> anyhow::Res
         actor_seed: reply.actor_seed,
         run_id: reply.run_id,
         next_sequence: reply.next_sequence,
+        session: reply.session,
     })
 }
 
@@ -306,11 +320,30 @@ impl Outbox {
         seq
     }
 
-    /// Forgets every batch up to and including `sequence` (acknowledgements come in order).
-    pub fn ack(&mut self, sequence: u64) {
+    /// Follows a (re)registration that expects `expected` next. Pending batches numbered from
+    /// below `expected` up to it were inserted and their acknowledgements lost: they keep
+    /// their numbers and are acknowledged as duplicates. Otherwise the learner does not know
+    /// them (a restarted learner, which expects 0 from a new name, or one that expects more
+    /// than was ever sent): they are renumbered from `expected`, as is what comes after.
+    pub fn rebase(&mut self, expected: u64) {
+        let first = self.pending.front().map_or(self.next_sequence, |(s, _)| *s);
+        if (first..=self.next_sequence).contains(&expected) {
+            return;
+        }
+        for (i, (s, _)) in self.pending.iter_mut().enumerate() {
+            *s = expected + i as u64;
+        }
+        self.next_sequence = expected + self.pending.len() as u64;
+    }
+
+    /// Forgets every batch up to and including `sequence` (acknowledgements come in order);
+    /// returns how many.
+    pub fn ack(&mut self, sequence: u64) -> usize {
+        let before = self.pending.len();
         while self.pending.front().is_some_and(|(s, _)| *s <= sequence) {
             self.pending.pop_front();
         }
+        before - self.pending.len()
     }
 
     /// Batches waiting for an acknowledgement.
@@ -362,6 +395,7 @@ pub struct LinkCounters {
 /// are never contended, they only make the future `Send`.
 struct Session<'a> {
     outbox: &'a Mutex<Outbox>,
+    credits: &'a Credits,
     counters: &'a Mutex<LinkCounters>,
     input_closed: &'a Mutex<bool>,
 }
@@ -372,13 +406,14 @@ impl Session<'_> {
     async fn run(
         &self,
         client: &mut Client,
-        actor_id: u32,
+        reg: &Registered,
         batches: &mut mpsc::Receiver<EncodedBatch>,
     ) -> Result<(), String> {
+        let actor_id = reg.actor_id;
         let (out_tx, out_rx) = mpsc::channel::<Outgoing>(2);
         let status = |s: tonic::Status| format!("{:?}: {}", s.code(), s.message());
         let mut acks = client
-            .transitions_encoded(ReceiverStream::new(out_rx))
+            .transitions_encoded(&reg.session, ReceiverStream::new(out_rx))
             .await
             .map_err(status)?
             .into_inner();
@@ -408,7 +443,8 @@ impl Session<'_> {
         };
         let receive = async {
             while let Some(ack) = acks.message().await.map_err(status)? {
-                self.outbox.lock().expect("link lock").ack(ack.sequence);
+                let done = self.outbox.lock().expect("link lock").ack(ack.sequence);
+                self.credits.give(done);
                 let mut c = self.counters.lock().expect("link lock");
                 c.batches_acked += 1;
                 c.transitions_acked += ack.accepted as u64;
@@ -450,22 +486,40 @@ pub struct LinkOptions {
 /// Runs the link until the adder closes `batches` and the learner has acknowledged everything,
 /// reconnecting whenever the learner goes away. Gives up only after a stop (local, `stop`, or
 /// from the learner) with no learner for [`GIVE_UP_AFTER_STOP`].
+/// `credits` go back to the adder as the learner acknowledges batches, and are closed when the
+/// link ends.
+#[allow(clippy::too_many_arguments)]
 pub async fn run_link(
     opts: LinkOptions,
     mut client: Client,
     first: Registered,
     mut batches: mpsc::Receiver<EncodedBatch>,
+    credits: Arc<Credits>,
     variables: watch::Sender<Option<Arc<Variables>>>,
     stop: CancellationToken,
 ) -> LinkCounters {
+    // Whatever ends the link, a loop waiting for a credit is released.
+    struct CloseOnDrop<'a>(&'a Credits);
+    impl Drop for CloseOnDrop<'_> {
+        fn drop(&mut self) {
+            self.0.close();
+        }
+    }
+    let _close = CloseOnDrop(&credits);
     let outbox = Mutex::new(Outbox::new(first.next_sequence));
     let counters = Mutex::new(LinkCounters::default());
     let input_closed = Mutex::new(false);
-    let session = Session { outbox: &outbox, counters: &counters, input_closed: &input_closed };
-    let mut actor_id = first.actor_id;
+    let session = Session {
+        outbox: &outbox,
+        credits: &credits,
+        counters: &counters,
+        input_closed: &input_closed,
+    };
+    let mut reg = first;
     loop {
-        let follower = tokio::spawn(follow_variables(client.clone(), actor_id, variables.clone()));
-        let end = session.run(&mut client, actor_id, &mut batches).await;
+        let follower =
+            tokio::spawn(follow_variables(client.clone(), reg.actor_id, variables.clone()));
+        let end = session.run(&mut client, &reg, &mut batches).await;
         follower.abort();
         let error = match end {
             Ok(()) => break,
@@ -504,7 +558,7 @@ pub async fn run_link(
                 Err(e) => tracing::debug!(error = %e, "re-registration failed; retrying"),
             }
         };
-        let Some((c, reg)) = reconnected else {
+        let Some((c, again)) = reconnected else {
             tracing::error!(
                 name = %opts.name,
                 undelivered = outbox.lock().expect("link lock").pending_transitions(),
@@ -512,9 +566,10 @@ pub async fn run_link(
             );
             break;
         };
-        tracing::info!(name = %opts.name, actor_id = reg.actor_id, "reconnected to the learner");
+        tracing::info!(name = %opts.name, actor_id = again.actor_id, "reconnected to the learner");
+        outbox.lock().expect("link lock").rebase(again.next_sequence);
         client = c;
-        actor_id = reg.actor_id;
+        reg = again;
         counters.lock().expect("link lock").reconnects += 1;
     }
     let mut c = counters.into_inner().expect("link lock");
@@ -557,5 +612,31 @@ mod tests {
         o.ack(9);
         assert!(o.is_empty());
         assert_eq!(o.push(batch(1)), 10, "numbering continues");
+    }
+
+    #[test]
+    fn rebase_keeps_numbers_the_learner_knows_and_renumbers_the_rest() {
+        let mut o = Outbox::new(5);
+        for n in 1..=3 {
+            o.push(batch(n));
+        }
+        // Pending 5, 6, 7; the learner inserted 5 and 6 (their acks lost): unchanged.
+        o.rebase(7);
+        assert_eq!(o.resend(0).iter().map(|m| m.sequence).collect::<Vec<_>>(), [5, 6, 7]);
+        o.rebase(8);
+        assert_eq!(o.resend(0)[0].sequence, 5, "all inserted: resent as duplicates");
+        // A restarted learner expects 0 from this name: renumbered, and so is what follows.
+        o.rebase(0);
+        assert_eq!(o.resend(0).iter().map(|m| m.sequence).collect::<Vec<_>>(), [0, 1, 2]);
+        assert_eq!(o.push(batch(1)), 3);
+        // One that expects more than was ever sent.
+        o.rebase(100);
+        assert_eq!(
+            o.resend(0).iter().map(|m| m.sequence).collect::<Vec<_>>(),
+            [100, 101, 102, 103]
+        );
+        let mut empty = Outbox::new(9);
+        empty.rebase(0);
+        assert_eq!(empty.push(batch(1)), 0);
     }
 }

@@ -8,12 +8,14 @@
 //! - [`environment_loop`]: [`EnvironmentLoop`], reset/step/observe over a `VecEnv`; generic
 //!   over the [`dvnav_link::core::Adder`] and [`dvnav_link::core::VariableSource`] seams.
 //! - [`adder`]: [`adder::BatchingAdder`], transitions into bounded batches for the stream.
+//! - [`credits`]: [`credits::Credits`], how many batches may await an acknowledgement.
 //! - [`variable_client`]: [`variable_client::VariableClient`], the newest weights and stage.
 //! - [`episode_logger`]: which episodes go to MCAP.
 //! - [`learner_link`]: connection, registration, delivery with acknowledgements, reconnection.
 //! - [`mod@run`]: a whole actor process for `dvnav actor` and `dvnav train`.
 
 pub mod adder;
+pub mod credits;
 pub mod environment_loop;
 pub mod episode_logger;
 pub mod learner_link;

@@ -2,6 +2,7 @@
 //! thread, deliver its batches through the [`crate::learner_link`], write a summary.
 
 use crate::adder::BatchingAdder;
+use crate::credits::Credits;
 use crate::environment_loop::{EnvironmentLoop, LoopCounters};
 use crate::episode_logger::EpisodeSelector;
 pub use crate::learner_link::connect;
@@ -11,6 +12,7 @@ use dvnav_eval::episode_log::LogMetadata;
 use serde::Serialize;
 use std::future::Future;
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
 use tokio_util::sync::CancellationToken;
@@ -90,6 +92,8 @@ pub async fn run(
     // A bounded queue between the loop thread and the link: when the learner pushes back or is
     // away, the loop blocks here.
     let (batch_tx, batch_rx) = mpsc::channel(cfg.actor.send_queue_batches);
+    // Batches awaiting an acknowledgement: the loop blocks before starting one more.
+    let credits = Arc::new(Credits::new(cfg.actor.max_batches_in_flight));
     let link = run_link(
         LinkOptions {
             url: opts.learner_url.clone(),
@@ -100,6 +104,7 @@ pub async fn run(
         client,
         reg.clone(),
         batch_rx,
+        credits.clone(),
         var_tx,
         stop.clone(),
     );
@@ -127,7 +132,8 @@ pub async fn run(
             // 0.6 heartbeat that makes a stall (learner/src/watchdog.rs).
             let max_delay = Duration::from_secs_f64(cfg.learner.heartbeat_s / 4.0);
             let adder =
-                BatchingAdder::new(cfg.obs_dim(), cfg.actor.batch_transitions, max_delay, batch_tx);
+                BatchingAdder::new(cfg.obs_dim(), cfg.actor.batch_transitions, max_delay, batch_tx)
+                    .with_credits(credits);
             let mut el = EnvironmentLoop::new(
                 cfg,
                 name,

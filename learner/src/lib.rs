@@ -9,6 +9,7 @@
 //!   curriculum, budget, end of run), testable without a network, with its own save and
 //!   restore; its status types ([`state::status`]) and live recorder ([`state::live`]).
 //! - [`service`]: the tonic service, translating only.
+//! - [`actor_tokens`]: per-actor tokens (`--actor-tokens`), name → token.
 //! - [`replay`]: the replay buffer and the [`replay::Batch`] it samples.
 //! - [`rate_limiter`]: keeps updates per environment step fixed; the source of backpressure.
 //! - [`sac`]: networks, Adam, the losses ([`sac::learning`]) and [`sac::SacLearner`].
@@ -28,6 +29,7 @@
 //! No module imports one that imports it back. The end of the run is one shape throughout:
 //! the state's `CancellationToken`s (tokio-util), which every task and server stops on.
 
+pub mod actor_tokens;
 pub mod alloc_count;
 pub mod bench;
 pub mod checkpoint;

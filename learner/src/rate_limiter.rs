@@ -3,6 +3,14 @@
 //! and ingestion waits when the data is more than `max_steps_ahead` steps ahead of training.
 //! Ingestion waiting is what pushes back on the actors: the gRPC handler stops reading, HTTP/2
 //! flow control fills, and the actors' sends block.
+//!
+//! At the end of the step budget ingestion stops waiting ([`RateLimiter::stop_ingest`]: what
+//! actors still have in flight goes in at once) while the trainer goes on until it has done
+//! every update the ratio allows for what was inserted up to the budget
+//! ([`RateLimiter::is_paid`]): a run whose budget was reached at N steps ends with
+//! ⌊(N − learning_starts + 1)·ratio⌋ updates however far ingestion had run ahead. What arrives
+//! after (the actors' batches in flight) goes into the buffer but owes no updates, so the end
+//! of a run takes at most the `max_steps_ahead` steps' worth of updates.
 
 use std::sync::{Condvar, Mutex};
 use std::time::Duration;
@@ -13,6 +21,10 @@ struct State {
     inserted: u64,
     updates: u64,
     closed: bool,
+    /// Ingestion no longer waits (the budget is reached); the trainer still may update.
+    ingest_stopped: bool,
+    /// Transitions inserted when ingestion stopped: updates are owed for these only.
+    owed_for: Option<u64>,
 }
 
 /// What [`RateLimiter::pressure`] reports.
@@ -59,6 +71,11 @@ impl RateLimiter {
         self.updates_tx.send_replace(updates);
     }
 
+    /// Updates allowed now: for what was inserted, up to the budget once ingestion stopped.
+    fn allowed(&self, s: &State) -> u64 {
+        self.updates_allowed(s.owed_for.map_or(s.inserted, |n| n.min(s.inserted)))
+    }
+
     /// Updates allowed once `inserted` transitions have arrived.
     pub fn updates_allowed(&self, inserted: u64) -> u64 {
         if inserted < self.learning_starts {
@@ -83,7 +100,7 @@ impl RateLimiter {
         loop {
             {
                 let s = self.state.lock().expect("rate limiter lock");
-                if s.closed || self.may_insert(s.inserted, s.updates) {
+                if s.closed || s.ingest_stopped || self.may_insert(s.inserted, s.updates) {
                     return;
                 }
             }
@@ -99,8 +116,10 @@ impl RateLimiter {
     pub fn pressure(&self) -> Pressure {
         let s = self.state.lock().expect("rate limiter lock");
         Pressure {
-            updates_owed: self.updates_allowed(s.inserted).saturating_sub(s.updates),
-            ingest_blocked: !s.closed && !self.may_insert(s.inserted, s.updates),
+            updates_owed: self.allowed(&s).saturating_sub(s.updates),
+            ingest_blocked: !s.closed
+                && !s.ingest_stopped
+                && !self.may_insert(s.inserted, s.updates),
             closed: s.closed,
         }
     }
@@ -120,13 +139,13 @@ impl RateLimiter {
             if s.closed {
                 return false;
             }
-            if s.updates < self.updates_allowed(s.inserted) {
+            if s.updates < self.allowed(&s) {
                 return true;
             }
             let (guard, timeout) =
                 self.trainer_wakeup.wait_timeout(s, tick).expect("rate limiter lock");
             s = guard;
-            if timeout.timed_out() && !s.closed && s.updates >= self.updates_allowed(s.inserted) {
+            if timeout.timed_out() && !s.closed && s.updates >= self.allowed(&s) {
                 return false;
             }
         }
@@ -146,6 +165,23 @@ impl RateLimiter {
         self.trainer_wakeup.notify_all();
         let u = s.updates;
         self.updates_tx.send_replace(u);
+    }
+
+    /// The end of the step budget: ingestion stops waiting for the trainer (waiters are
+    /// released), and the trainer goes on paying the updates the ratio owes.
+    pub fn stop_ingest(&self) {
+        let mut s = self.state.lock().expect("rate limiter lock");
+        s.ingest_stopped = true;
+        let inserted = s.inserted;
+        s.owed_for.get_or_insert(inserted);
+        let u = s.updates;
+        self.updates_tx.send_replace(u);
+    }
+
+    /// Every update the ratio allows for what was inserted is done.
+    pub fn is_paid(&self) -> bool {
+        let s = self.state.lock().expect("rate limiter lock");
+        s.updates >= self.allowed(&s)
     }
 
     /// True once closed.
@@ -208,5 +244,32 @@ mod tests {
         };
         rl.close();
         tokio::time::timeout(Duration::from_secs(5), waiter).await.unwrap().unwrap();
+    }
+
+    #[tokio::test]
+    async fn after_the_budget_ingestion_goes_in_and_the_trainer_pays_what_it_owes() {
+        let rl = std::sync::Arc::new(RateLimiter::new(0.5, 10, 4));
+        rl.inserted(14);
+        let waiter = {
+            let rl = rl.clone();
+            tokio::spawn(async move { rl.wait_to_insert().await })
+        };
+        tokio::task::yield_now().await;
+        assert!(!waiter.is_finished(), "14 steps, no updates: 4 ahead");
+        rl.inserted(6);
+        // The batch that reaches the budget: (20 - 10 + 1) * 0.5 = 5 updates owed.
+        rl.stop_ingest();
+        tokio::time::timeout(Duration::from_secs(5), waiter).await.unwrap().unwrap();
+        // What was in flight goes in, and owes nothing more.
+        rl.inserted(100);
+        assert_eq!(rl.pressure().updates_owed, 5);
+        assert!(!rl.is_paid());
+        for _ in 0..5 {
+            assert!(rl.wait_to_update(Duration::from_millis(1)));
+            rl.updated();
+        }
+        assert!(rl.is_paid());
+        assert!(!rl.wait_to_update(Duration::from_millis(1)));
+        assert!(!rl.pressure().ingest_blocked);
     }
 }

@@ -25,6 +25,8 @@ pub struct LearnerOptions {
     pub out_dir: PathBuf,
     /// Shared token actors must present, if any.
     pub token: Option<String>,
+    /// Per-actor tokens (`--actor-tokens`), if any.
+    pub actor_tokens: Option<crate::actor_tokens::ActorTokens>,
     /// Run id (defaults to the directory name).
     pub run_id: Option<String>,
     /// Continue from the newest complete checkpoint in `out_dir` (`--resume`).
@@ -96,12 +98,10 @@ pub async fn run(
     let nets = SacNetworks::new(&cfg, cfg.run.seed, &device)?;
     let mut learner = SacLearner::new(nets, cfg.sac.clone(), device, cfg.run.seed ^ 0x0005_ac00)?;
     let mut sample_rng = trainer::sample_rng(cfg.run.seed);
-    let state = Arc::new(LearnerState::new(
-        cfg.clone(),
-        run_id,
-        opts.token.clone(),
-        learner.policy_safetensors()?,
-    ));
+    let state = Arc::new(
+        LearnerState::new(cfg.clone(), run_id, opts.token.clone(), learner.policy_safetensors()?)
+            .with_actor_tokens(opts.actor_tokens.clone()),
+    );
     if opts.resume {
         let ckpt = Checkpoint::latest(&opts.out_dir)?;
         sample_rng = ckpt.resume(&mut learner, &state)?.unwrap_or(sample_rng);
@@ -156,9 +156,10 @@ pub async fn run(
 
     // Until the budget is reached or we are told to stop.
     let done = state.done_signal();
-    let interrupted = tokio::select! {
+    tokio::pin!(shutdown);
+    let mut interrupted = tokio::select! {
         () = done.cancelled() => false,
-        () = shutdown => true,
+        () = &mut shutdown => true,
     };
     if interrupted {
         tracing::info!("shutdown requested; telling actors to stop");
@@ -168,6 +169,29 @@ pub async fn run(
     let deadline = Instant::now() + ACTOR_DRAIN_TIMEOUT;
     while state.status().actors.iter().any(|a| a.connected) && Instant::now() < deadline {
         tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    // The budget keeps the replay ratio: ingestion may have run `learner.max_steps_ahead`
+    // ahead of training, and those updates are owed before the run ends.
+    if !interrupted {
+        let (_, from) = state.limiter().counters();
+        let owed = state.limiter().pressure().updates_owed;
+        if owed > 0 {
+            tracing::info!(owed, "budget reached; training the updates the replay ratio owes");
+        }
+        while !state.limiter().is_paid() && !trainer.is_finished() {
+            tokio::select! {
+                () = tokio::time::sleep(Duration::from_millis(50)) => {}
+                () = &mut shutdown => {
+                    tracing::info!("shutdown requested; the owed updates are not all done");
+                    interrupted = true;
+                    break;
+                }
+            }
+        }
+        let (_, to) = state.limiter().counters();
+        if owed > 0 && !interrupted {
+            tracing::info!(updates = to - from, "owed updates done");
+        }
     }
     state.begin_shutdown();
     let (learner, sample_rng) = tokio::task::spawn_blocking(move || trainer.join())

@@ -16,10 +16,16 @@ impl From<LearnerError> for Status {
         let msg = e.to_string();
         match e {
             LearnerError::ProtocolMismatch { .. } => Status::failed_precondition(msg),
-            LearnerError::Unauthenticated => Status::unauthenticated(msg),
+            LearnerError::Unauthenticated | LearnerError::ActorToken(_) => {
+                Status::unauthenticated(msg)
+            }
             LearnerError::UnknownActor(_) => Status::invalid_argument(msg),
+            LearnerError::NoSession | LearnerError::UnknownSession => Status::unauthenticated(msg),
+            LearnerError::WrongActor { .. } => Status::permission_denied(msg),
+            LearnerError::SequenceGap { .. } => Status::failed_precondition(msg),
             LearnerError::Malformed(_) => Status::invalid_argument(msg),
             LearnerError::InvalidRequest(_) => Status::invalid_argument(msg),
+            LearnerError::TooManyActors(_) => Status::resource_exhausted(msg),
             LearnerError::ShuttingDown => Status::unavailable(msg),
         }
     }
@@ -133,8 +139,13 @@ impl Learner for LearnerService {
         req: Request<pb::RegisterRequest>,
     ) -> Result<Response<pb::RegisterReply>, Status> {
         self.authorize(&req)?;
+        let presented = dvnav_tls::auth::bearer_token(req.metadata()).map(str::to_string);
         let r = req.into_inner();
-        let reg = self.state.register(&r.actor_name, r.protocol_version)?;
+        let reg = self.state.register_presenting(
+            &r.actor_name,
+            r.protocol_version,
+            presented.as_deref(),
+        )?;
         let cfg = self.state.config();
         Ok(Response::new(pb::RegisterReply {
             actor_id: reg.actor_id,
@@ -147,6 +158,7 @@ impl Learner for LearnerService {
             actor_seed: reg.actor_seed,
             run_id: self.state.run_id().to_string(),
             next_sequence: reg.next_sequence,
+            session: reg.session,
         }))
     }
 
@@ -157,12 +169,17 @@ impl Learner for LearnerService {
         req: Request<Streaming<pb::TransitionBatch>>,
     ) -> Result<Response<Self::TransitionsStream>, Status> {
         self.authorize(&req)?;
+        // The stream speaks for the actor whose session it presents, and for no other.
+        let credential = req
+            .metadata()
+            .get(dvnav_link::wire::SESSION_METADATA)
+            .map(|v| v.to_str().unwrap_or_default());
+        let stream_actor = self.state.open_stream(credential)?;
         let mut inbound = req.into_inner();
         let state = self.state.clone();
         let (tx, rx) = mpsc::channel(16);
         tokio::spawn(async move {
             let shutdown = state.shutdown_signal();
-            let mut actor: Option<u32> = None;
             // Why the stream ended, and whether that was the actor's (or the learner's) plan.
             let (reason, expected) = loop {
                 let next = tokio::select! {
@@ -174,13 +191,9 @@ impl Learner for LearnerService {
                 };
                 match next {
                     Ok(Some(batch)) => {
-                        if actor.is_none() {
-                            actor = Some(batch.actor_id);
-                            state.set_connected(batch.actor_id, true);
-                        }
                         let sequence = batch.sequence;
                         let ingested = tokio::select! {
-                            r = state.ingest(batch) => r,
+                            r = state.ingest(stream_actor, batch) => r,
                             // The actor vanished (killed, or its connection broke) while its
                             // batch waited for room in the replay buffer: it never learns the
                             // outcome, so the batch is dropped uncounted (`ingest` is cancel-safe
@@ -223,15 +236,14 @@ impl Learner for LearnerService {
                             }
                             _ => "stream_broken",
                         };
-                        state.count_rejection(actor, kind, &reason);
+                        state.count_rejection(Some(stream_actor), kind, &reason);
                         let _ = tx.send(Err(status)).await;
                         break (reason, false);
                     }
                 }
             };
-            if let Some(id) = actor
-                && let Some(a) = state.set_connected(id, false)
-            {
+            if let Some(a) = state.set_connected(stream_actor, false) {
+                let id = stream_actor;
                 let (name, received, batches) = (&a.name, a.transitions_received, a.batches);
                 if expected {
                     tracing::info!(actor = %name, actor_id = id, %reason, received, batches, "actor transition stream ended");

@@ -1,6 +1,7 @@
 //! The training loop, on its own thread: wait for the rate limiter, sample, update, publish
 //! weights every `publish_every_updates`, hand a snapshot of the policy to the evaluator every
-//! `eval_every_updates`, checkpoint every `checkpoint_every_updates`.
+//! `eval_every_updates`, checkpoint every `checkpoint_every_updates` and every
+//! `checkpoint_every_s` ([`CheckpointSchedule`]).
 
 use crate::checkpoint;
 use crate::evaluator::{Evaluator, Snapshot};
@@ -11,7 +12,48 @@ use rand::SeedableRng;
 use rand_pcg::Pcg64;
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
+
+/// When the trainer writes a checkpoint: every `every_updates` updates, and once `every_s`
+/// seconds have passed since the last one if training moved since (a learner killed in its
+/// first minutes then still has one to resume from). The time is checked while the trainer
+/// waits for data too, so a checkpoint is at most a tick later than due.
+#[derive(Debug)]
+pub struct CheckpointSchedule {
+    every_updates: u64,
+    every: Option<Duration>,
+    last_at: Instant,
+    last_updates: u64,
+}
+
+impl CheckpointSchedule {
+    /// From `learner.checkpoint_every_updates` and `learner.checkpoint_every_s` (0: off), with
+    /// the clock starting now at `updates` (non-zero after a resume).
+    pub fn new(every_updates: u64, every_s: f64, updates: u64) -> Self {
+        Self {
+            every_updates,
+            every: (every_s > 0.0).then(|| Duration::from_secs_f64(every_s)),
+            last_at: Instant::now(),
+            last_updates: updates,
+        }
+    }
+
+    /// Whether a checkpoint is due at `updates`, as of `now`.
+    pub fn due(&self, updates: u64, now: Instant) -> bool {
+        if updates == self.last_updates {
+            return false;
+        }
+        updates.is_multiple_of(self.every_updates)
+            || self.every.is_some_and(|e| now.duration_since(self.last_at) >= e)
+    }
+
+    /// Records a checkpoint attempt at `updates` (a failed one too: it is retried at the next
+    /// due time, not at every update).
+    pub fn written(&mut self, updates: u64, now: Instant) {
+        self.last_at = now;
+        self.last_updates = updates;
+    }
+}
 
 /// The batch-sampling generator of a fresh run with root seed `seed`.
 pub fn sample_rng(seed: u64) -> Pcg64 {
@@ -35,10 +77,18 @@ pub fn train(
             Box::new(move |path, e| state.record_write_failure("eval_csv", path, &e));
         Evaluator::start_reporting(&cfg, &out_dir, Some(report))?
     };
+    let mut schedule = CheckpointSchedule::new(
+        cfg.learner.checkpoint_every_updates,
+        cfg.learner.checkpoint_every_s,
+        learner.updates(),
+    );
     loop {
         if !limiter.wait_to_update(Duration::from_millis(200)) {
             if limiter.is_closed() {
                 break;
+            }
+            if schedule.due(learner.updates(), Instant::now()) {
+                checkpoint_now(&state, &learner, &rng, &out_dir, &mut schedule);
             }
             continue;
         }
@@ -63,24 +113,36 @@ pub fn train(
             let env_steps = state.status().transitions_received;
             ev.submit(Snapshot { updates, env_steps, policy_version, policy });
         }
-        if updates.is_multiple_of(cfg.learner.checkpoint_every_updates) {
-            // A failed checkpoint (disk full, unwritable directory) is logged and counted, and
-            // training goes on: the state is in memory, the previous checkpoint is intact, and
-            // the next one is tried at its usual time.
-            match checkpoint::save(&out_dir, &state, &learner, &rng) {
-                Ok(path) => tracing::info!(updates, path = %path.display(), "checkpoint written"),
-                Err(e) => state.record_write_failure(
-                    "checkpoint",
-                    &out_dir.join("checkpoints"),
-                    &format!("{e:#}"),
-                ),
-            }
+        if schedule.due(updates, Instant::now()) {
+            checkpoint_now(&state, &learner, &rng, &out_dir, &mut schedule);
         }
     }
     if let Some(ev) = evaluator {
         ev.finish();
     }
     Ok((learner, rng))
+}
+
+/// Writes a checkpoint. A failed one (disk full, unwritable directory) is logged and counted,
+/// and training goes on: the state is in memory, the previous checkpoint is intact, and the
+/// next one is tried at its usual time.
+fn checkpoint_now(
+    state: &LearnerState,
+    learner: &SacLearner,
+    rng: &Pcg64,
+    out_dir: &std::path::Path,
+    schedule: &mut CheckpointSchedule,
+) {
+    let updates = learner.updates();
+    match checkpoint::save(out_dir, state, learner, rng) {
+        Ok(path) => tracing::info!(updates, path = %path.display(), "checkpoint written"),
+        Err(e) => state.record_write_failure(
+            "checkpoint",
+            &out_dir.join("checkpoints"),
+            &format!("{e:#}"),
+        ),
+    }
+    schedule.written(updates, Instant::now());
 }
 
 /// One update: sample a batch with `rng`, update, count it.
@@ -95,4 +157,27 @@ pub fn train_step(
     state.limiter().updated();
     state.record_update(metrics);
     Ok(metrics)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn checkpoints_come_by_updates_and_by_time_once_training_moved() {
+        let t0 = Instant::now();
+        let s = CheckpointSchedule::new(100, 300.0, 0);
+        assert!(s.due(100, t0));
+        assert!(!s.due(99, t0 + Duration::from_secs(299)));
+        assert!(s.due(99, t0 + Duration::from_secs(301)), "by time");
+        let mut s = s;
+        s.written(99, t0 + Duration::from_secs(301));
+        assert!(!s.due(99, t0 + Duration::from_secs(10_000)), "nothing new to save");
+        assert!(!s.due(150, t0 + Duration::from_secs(600)));
+        assert!(s.due(150, t0 + Duration::from_secs(602)));
+        let by_updates_only = CheckpointSchedule::new(100, 0.0, 0);
+        assert!(!by_updates_only.due(99, t0 + Duration::from_secs(1_000_000)));
+        // A resumed run does not checkpoint again what it resumed from.
+        assert!(!CheckpointSchedule::new(100, 300.0, 200).due(200, t0));
+    }
 }

@@ -2,74 +2,11 @@
 //! acknowledgements for good batches, and a shutdown through a oneshot, never a sleep.
 
 use dvnav_config::Config;
-use dvnav_learner::service::LearnerService;
-use dvnav_learner::state::LearnerState;
-use dvnav_link::core::TransitionBatch;
-use dvnav_proto::learner_client::LearnerClient;
-use dvnav_proto::{PROTOCOL_VERSION, RegisterRequest, StatusRequest, VariablesRequest};
-use std::sync::Arc;
+use dvnav_proto::{PROTOCOL_VERSION, StatusRequest, VariablesRequest};
+use support::{batch, bound, bound_iter, register, start, start_limited, start_with};
 use tonic::Code;
-use tonic::transport::Channel;
 
-struct Server {
-    state: Arc<LearnerState>,
-    url: String,
-    stop: Option<tokio::sync::oneshot::Sender<()>>,
-    task: tokio::task::JoinHandle<Result<(), tonic::transport::Error>>,
-}
-
-async fn start(token: Option<&str>) -> Server {
-    let mut cfg = Config::default();
-    cfg.run.steps = 1_000;
-    start_with(cfg, token).await
-}
-
-async fn start_with(cfg: Config, token: Option<&str>) -> Server {
-    let state =
-        Arc::new(LearnerState::new(cfg, "t".into(), token.map(String::from), vec![1, 2, 3]));
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let url = format!("http://{}", listener.local_addr().unwrap());
-    let (tx, rx) = tokio::sync::oneshot::channel::<()>();
-    let task = tokio::spawn(
-        tonic::transport::Server::builder()
-            .add_service(LearnerService::server(state.clone()))
-            .serve_with_incoming_shutdown(
-                tokio_stream::wrappers::TcpListenerStream::new(listener),
-                async {
-                    let _ = rx.await;
-                },
-            ),
-    );
-    Server { state, url, stop: Some(tx), task }
-}
-
-impl Server {
-    async fn client(&self) -> LearnerClient<Channel> {
-        LearnerClient::connect(self.url.clone())
-            .await
-            .unwrap()
-            .max_decoding_message_size(dvnav_proto::MAX_MESSAGE_BYTES)
-    }
-
-    async fn shutdown(mut self) {
-        self.state.begin_shutdown();
-        self.stop.take().unwrap().send(()).unwrap();
-        self.task.await.unwrap().unwrap();
-    }
-}
-
-fn register(name: &str, version: u32) -> RegisterRequest {
-    RegisterRequest { actor_name: name.into(), protocol_version: version, num_envs: 1 }
-}
-
-fn batch(cfg: &Config, n: usize) -> TransitionBatch {
-    let d = cfg.obs_dim();
-    let mut b = TransitionBatch::with_capacity(d, n);
-    for _ in 0..n {
-        b.push(&vec![1.0; d], [0.5, 0.0], 0.1, &vec![1.0; d], false, false, 1);
-    }
-    b
-}
+mod support;
 
 #[tokio::test]
 async fn wrong_protocol_version_is_a_failed_precondition() {
@@ -102,13 +39,15 @@ async fn a_missing_or_wrong_token_is_refused() {
 async fn good_batches_are_acknowledged_and_malformed_ones_rejected_and_counted() {
     let s = start(None).await;
     let mut c = s.client().await;
-    let id = c.register(register("a", PROTOCOL_VERSION)).await.unwrap().into_inner().actor_id;
+    let reg = c.register(register("a", PROTOCOL_VERSION)).await.unwrap().into_inner();
+    let id = reg.actor_id;
     let cfg = s.state.config().clone();
     let good = dvnav_link::wire::batch_to_proto(&batch(&cfg, 5), id, 0);
     let mut bad = dvnav_link::wire::batch_to_proto(&batch(&cfg, 3), id, 1);
     bad.observations[7] = f32::NAN;
 
-    let mut acks = c.transitions(tokio_stream::iter(vec![good, bad])).await.unwrap().into_inner();
+    let mut acks =
+        c.transitions(bound_iter(&reg.session, vec![good, bad])).await.unwrap().into_inner();
     let first = acks.message().await.unwrap().unwrap();
     assert_eq!((first.sequence, first.accepted), (0, 5));
     let err = acks.message().await.unwrap_err();
@@ -119,10 +58,10 @@ async fn good_batches_are_acknowledged_and_malformed_ones_rejected_and_counted()
     assert_eq!((st.transitions_received, st.transitions_rejected), (5, 3));
     assert_eq!(st.replay_size, 5, "the malformed batch never reached the replay buffer");
 
-    // A batch from an actor that never registered.
+    // A stream without a session, as from an actor that never registered.
     let stranger = dvnav_link::wire::batch_to_proto(&batch(&cfg, 1), 42, 0);
-    let mut acks = c.transitions(tokio_stream::iter(vec![stranger])).await.unwrap().into_inner();
-    assert_eq!(acks.message().await.unwrap_err().code(), Code::InvalidArgument);
+    let err = c.transitions(tokio_stream::iter(vec![stranger])).await.unwrap_err();
+    assert_eq!(err.code(), Code::Unauthenticated, "{err}");
     s.shutdown().await;
 }
 
@@ -157,13 +96,16 @@ async fn random_batches_are_refused_and_the_learner_keeps_serving() {
     use rand::{Rng, SeedableRng};
     let s = start(None).await;
     let mut c = s.client().await;
-    let id = c.register(register("fuzz", PROTOCOL_VERSION)).await.unwrap().into_inner().actor_id;
+    let reg = c.register(register("fuzz", PROTOCOL_VERSION)).await.unwrap().into_inner();
+    let id = reg.actor_id;
     let cfg = s.state.config().clone();
     let d = cfg.obs_dim();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
     let mut refused = 0;
     let mut inserted = 0u64;
-    for seq in 0..60u64 {
+    // The sequence number moves on only when a batch is accepted.
+    let mut seq = 0u64;
+    for _ in 0..60 {
         let mut m = dvnav_link::wire::batch_to_proto(&batch(&cfg, 2), id, seq);
         match rng.random_range(0..6) {
             0 => m.count = rng.random(),
@@ -177,9 +119,12 @@ async fn random_batches_are_refused_and_the_learner_keeps_serving() {
             _ => m.terminated = vec![true; rng.random_range(0..5)],
         }
         let claimed = m.count as u64;
-        let mut acks = c.transitions(tokio_stream::iter(vec![m])).await.unwrap().into_inner();
+        let mut acks = c.transitions(bound_iter(&reg.session, vec![m])).await.unwrap().into_inner();
         match acks.message().await {
-            Ok(Some(ack)) => inserted += ack.accepted as u64,
+            Ok(Some(ack)) => {
+                inserted += ack.accepted as u64;
+                seq += 1;
+            }
             Err(e) => {
                 assert_eq!(e.code(), Code::InvalidArgument, "{e}");
                 refused += 1;
@@ -193,8 +138,8 @@ async fn random_batches_are_refused_and_the_learner_keeps_serving() {
     assert_eq!(st.replay_size, inserted, "only valid batches reached the replay buffer");
     assert_eq!(st.transitions_received, inserted);
     // Still serving.
-    let ok = dvnav_link::wire::batch_to_proto(&batch(&cfg, 1), id, 1_000);
-    let mut acks = c.transitions(tokio_stream::iter(vec![ok])).await.unwrap().into_inner();
+    let ok = dvnav_link::wire::batch_to_proto(&batch(&cfg, 1), id, seq);
+    let mut acks = c.transitions(bound_iter(&reg.session, vec![ok])).await.unwrap().into_inner();
     assert_eq!(acks.message().await.unwrap().unwrap().accepted, 1);
     s.shutdown().await;
 }
@@ -211,10 +156,14 @@ async fn a_batch_waiting_when_its_actor_dies_is_dropped_uncounted() {
     cfg.learner.max_steps_ahead = 5;
     let s = start_with(cfg.clone(), None).await;
     let mut c = s.client().await;
-    let id = c.register(register("doomed", PROTOCOL_VERSION)).await.unwrap().into_inner().actor_id;
+    let reg = c.register(register("doomed", PROTOCOL_VERSION)).await.unwrap().into_inner();
+    let id = reg.actor_id;
     let (tx, rx) = tokio::sync::mpsc::channel(4);
-    let mut acks =
-        c.transitions(tokio_stream::wrappers::ReceiverStream::new(rx)).await.unwrap().into_inner();
+    let mut acks = c
+        .transitions(bound(&reg.session, tokio_stream::wrappers::ReceiverStream::new(rx)))
+        .await
+        .unwrap()
+        .into_inner();
     let proto = |n, seq| dvnav_link::wire::batch_to_proto(&batch(&cfg, n), id, seq);
     tx.send(proto(5, 0)).await.unwrap();
     assert_eq!(acks.message().await.unwrap().unwrap().accepted, 5);
@@ -240,7 +189,8 @@ async fn a_batch_waiting_when_its_actor_dies_is_dropped_uncounted() {
     let mut c = s.client().await;
     let again = c.register(register("doomed", PROTOCOL_VERSION)).await.unwrap().into_inner();
     assert_eq!((again.actor_id, again.next_sequence), (id, 1));
-    let mut acks = c.transitions(tokio_stream::iter(vec![proto(3, 1)])).await.unwrap().into_inner();
+    let mut acks =
+        c.transitions(bound_iter(&again.session, vec![proto(3, 1)])).await.unwrap().into_inner();
     let ack = acks.message().await.unwrap().unwrap();
     assert_eq!((ack.accepted, ack.duplicate), (3, false));
     assert_eq!(s.state.status().transitions_received, 8);
@@ -255,28 +205,15 @@ async fn a_batch_waiting_when_its_actor_dies_is_dropped_uncounted() {
 async fn an_oversized_message_is_refused_and_the_learner_keeps_serving() {
     let mut cfg = Config::default();
     cfg.run.steps = 1_000_000;
-    let state = Arc::new(LearnerState::new(cfg.clone(), "t".into(), None, vec![1, 2, 3]));
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let url = format!("http://{}", listener.local_addr().unwrap());
-    let (tx, rx) = tokio::sync::oneshot::channel::<()>();
-    let task = tokio::spawn(
-        tonic::transport::Server::builder()
-            .add_service(LearnerService::server_with_limit(state.clone(), 1 << 20))
-            .serve_with_incoming_shutdown(
-                tokio_stream::wrappers::TcpListenerStream::new(listener),
-                async {
-                    let _ = rx.await;
-                },
-            ),
-    );
-    let s = Server { state, url, stop: Some(tx), task };
+    let s = start_limited(cfg.clone(), None, 1 << 20).await;
     let mut c = s.client().await;
-    let id = c.register(register("a", PROTOCOL_VERSION)).await.unwrap().into_inner().actor_id;
+    let reg = c.register(register("a", PROTOCOL_VERSION)).await.unwrap().into_inner();
+    let id = reg.actor_id;
     // Just over 1 MiB: n transitions of one obs_dim-long observation of four-byte floats each
     // (the next observation of one is the observation of the following one).
     let n = 1 + (1 << 20) / (4 * cfg.obs_dim());
     let huge = dvnav_link::wire::batch_to_proto(&batch(&cfg, n), id, 0);
-    let mut acks = c.transitions(tokio_stream::iter(vec![huge])).await.unwrap().into_inner();
+    let mut acks = c.transitions(bound_iter(&reg.session, vec![huge])).await.unwrap().into_inner();
     let err = acks.message().await.unwrap_err();
     assert_eq!(err.code(), Code::OutOfRange, "{err}");
     let st = s.state.status();
@@ -289,7 +226,7 @@ async fn an_oversized_message_is_refused_and_the_learner_keeps_serving() {
     );
     // The learner still serves: a normal batch on a new stream is accepted.
     let ok = dvnav_link::wire::batch_to_proto(&batch(&cfg, 4), id, 0);
-    let mut acks = c.transitions(tokio_stream::iter(vec![ok])).await.unwrap().into_inner();
+    let mut acks = c.transitions(bound_iter(&reg.session, vec![ok])).await.unwrap().into_inner();
     assert_eq!(acks.message().await.unwrap().unwrap().accepted, 4);
     let status = c.status(StatusRequest {}).await.unwrap().into_inner();
     assert_eq!(status.transitions_received, 4);

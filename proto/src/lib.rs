@@ -10,7 +10,10 @@
 
 /// Version of the actor ⇄ learner protocol; a learner refuses actors that speak another one.
 /// 2: each observation travels once (`TransitionBatch.next_obs_index`).
-pub const PROTOCOL_VERSION: u32 = 2;
+/// 3: `Register` returns a session credential (`RegisterReply.session`) that every
+/// `Transitions` stream presents; batches follow the acknowledged sequence without gaps, and
+/// an episode's report travels with its last transition.
+pub const PROTOCOL_VERSION: u32 = 3;
 
 /// Largest gRPC message either side of the learner service accepts or sends. Weights of the
 /// default policy are about 1 MB and a default batch about 0.3 MB, over gRPC's 4 MiB default

@@ -346,15 +346,15 @@ async fn bench_transport(transitions: usize, batch: usize) -> anyhow::Result<ser
     let mut client =
         dvnav_actor::run::connect(&format!("http://{addr}"), None, None, Duration::from_secs(10))
             .await?;
-    let id = client
+    let reg = client
         .register(dvnav_proto::RegisterRequest {
             actor_name: "bench".into(),
             protocol_version: dvnav_proto::PROTOCOL_VERSION,
             num_envs: 1,
         })
         .await?
-        .into_inner()
-        .actor_id;
+        .into_inner();
+    let id = reg.actor_id;
     let d = cfg.obs_dim();
     let mut b = TransitionBatch::with_capacity(d, batch);
     let obs: Vec<f32> = (0..d).map(|i| 0.5 + (i % 50) as f32 * 0.1).collect();
@@ -372,7 +372,8 @@ async fn bench_transport(transitions: usize, batch: usize) -> anyhow::Result<ser
         sequence: s as u64,
         batch: dvnav_link::wire::EncodedBatch::new(&b),
     });
-    let mut acks = client.transitions_encoded(tokio_stream::iter(msgs)).await?.into_inner();
+    let mut acks =
+        client.transitions_encoded(&reg.session, tokio_stream::iter(msgs)).await?.into_inner();
     let mut accepted = 0u64;
     while let Some(a) = acks.message().await? {
         accepted += a.accepted as u64;

@@ -25,6 +25,10 @@ pub struct LearnerArgs {
     /// File holding the shared access token actors must present (or set DVNAV_TOKEN).
     #[arg(long)]
     pub token_file: Option<PathBuf>,
+    /// Per-actor tokens: a file of `NAME TOKEN` lines. A listed actor registers only with its
+    /// own token; others need the shared token (--token-file), or are refused without one.
+    #[arg(long, value_name = "FILE")]
+    pub actor_tokens: Option<PathBuf>,
     #[command(flatten)]
     pub tls: super::tls::ServerTlsArgs,
     /// Continue from the newest complete checkpoint in `--out`: networks, optimizers,
@@ -77,6 +81,11 @@ pub fn run(mut args: LearnerArgs) -> anyhow::Result<ExitCode> {
         unsafe { std::env::set_var("CANDLE_NUM_THREADS", cfg.learner.threads.to_string()) };
     }
     let token = super::read_token(args.token_file.as_deref())?;
+    let actor_tokens = args
+        .actor_tokens
+        .as_deref()
+        .map(dvnav_learner::actor_tokens::ActorTokens::load)
+        .transpose()?;
     let tls = args.tls.load()?;
     let rt = super::runtime()?;
     rt.block_on(async move {
@@ -89,6 +98,7 @@ pub fn run(mut args: LearnerArgs) -> anyhow::Result<ExitCode> {
             out = %args.out.display(),
             tls = tls.is_some(),
             token = token.is_some(),
+            actor_tokens = actor_tokens.is_some(),
             "learner listening"
         );
         // Bound before the address file appears, so a supervisor that sees it finds both.
@@ -122,6 +132,7 @@ pub fn run(mut args: LearnerArgs) -> anyhow::Result<ExitCode> {
             dvnav_learner::LearnerOptions {
                 out_dir: args.out.clone(),
                 token,
+                actor_tokens,
                 run_id: None,
                 resume: args.resume,
                 metrics_listener,

@@ -184,6 +184,16 @@ pub struct LearnerConfig {
     pub publish_every_updates: u64,
     /// A checkpoint is written every this many updates (and at the end of the run).
     pub checkpoint_every_updates: u64,
+    /// Distinct actor names the learner registers over a run; one more is refused
+    /// (RESOURCE_EXHAUSTED). Bounds the per-actor counters and the `actor` label values of
+    /// `/metrics` against a caller that registers name after name. `dvnav train` uses one name
+    /// per process, restarts included.
+    pub max_actor_names: usize,
+    /// A checkpoint is also written once this many seconds have passed since the last one
+    /// (or the start) and training has moved since, so a learner killed early in a run, long
+    /// before `checkpoint_every_updates`, resumes from one at most this old. 0: by updates
+    /// only.
+    pub checkpoint_every_s: f64,
     /// How many environment steps ingestion may run ahead of what the replay ratio allows
     /// before the learner stops reading transitions (backpressure to the actors).
     pub max_steps_ahead: u64,
@@ -214,6 +224,8 @@ impl Default for LearnerConfig {
         Self {
             publish_every_updates: 50,
             checkpoint_every_updates: 10_000,
+            checkpoint_every_s: 300.0,
+            max_actor_names: 1024,
             max_steps_ahead: 2_000,
             threads: 1,
             eval_every_updates: 2_000,
@@ -234,11 +246,16 @@ pub struct ActorConfig {
     pub batch_transitions: usize,
     /// Batches that may wait for the network before the environment loop blocks.
     pub send_queue_batches: usize,
+    /// Batches handed to the learner and not yet acknowledged before the environment loop
+    /// blocks, before it starts the next one: fresh data (the policy lag of what the learner
+    /// inserts) against actor idle time. 1: an actor acts its next batch once the learner has
+    /// taken the last.
+    pub max_batches_in_flight: usize,
 }
 
 impl Default for ActorConfig {
     fn default() -> Self {
-        Self { envs: 4, batch_transitions: 128, send_queue_batches: 4 }
+        Self { envs: 4, batch_transitions: 128, send_queue_batches: 4, max_batches_in_flight: 1 }
     }
 }
 
@@ -497,6 +514,12 @@ impl Config {
         if le.checkpoint_every_updates == 0 {
             return Err(bad("learner.checkpoint_every_updates", "must be at least 1"));
         }
+        if le.max_actor_names == 0 {
+            return Err(bad("learner.max_actor_names", "must be at least 1"));
+        }
+        if !(le.checkpoint_every_s.is_finite() && le.checkpoint_every_s >= 0.0) {
+            return Err(bad("learner.checkpoint_every_s", "must be 0 (off) or a positive time"));
+        }
         // Below 0.1 s the watchdog's sampling (a fifth of it) would cost more than it tells.
         if !(le.heartbeat_s.is_finite() && le.heartbeat_s >= 0.1) {
             return Err(bad(
@@ -514,6 +537,9 @@ impl Config {
         }
         if a.send_queue_batches == 0 {
             return Err(bad("actor.send_queue_batches", "must be at least 1"));
+        }
+        if a.max_batches_in_flight == 0 {
+            return Err(bad("actor.max_batches_in_flight", "must be at least 1"));
         }
         if le.max_steps_ahead < a.batch_transitions as u64 {
             return Err(bad(

@@ -9,6 +9,9 @@
 //! - [`wire`]: every conversion between these domain types and the wire types of
 //!   `dvnav-proto`, validating untrusted input in one place (each error names its field), and
 //!   [`wire::EncodedBatch`], a batch encoded once and sent as such however often.
+//! - [`consistency`]: whether a batch's episode reports can be true of its transitions and of
+//!   the run (counts, lengths, returns, stages), so fabricated episodes never move the
+//!   curriculum.
 //!
 //! It sits on [`dvnav_sim`] (observation layout, [`dvnav_sim::Outcome`]) and `dvnav-proto`
 //! only; the transport's security (TLS, tokens) is `dvnav-tls`.
@@ -23,5 +26,6 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod consistency;
 pub mod core;
 pub mod wire;

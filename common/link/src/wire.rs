@@ -20,6 +20,9 @@ use std::sync::Arc;
 pub const MAX_ABS_REWARD: f32 = 1.0e3;
 /// Largest transition count in one batch.
 pub const MAX_BATCH_TRANSITIONS: usize = 65_536;
+/// Request metadata key of the `Transitions` stream that carries the session credential
+/// `Register` returned: the stream speaks for that actor only.
+pub const SESSION_METADATA: &str = "x-dvnav-session";
 
 /// Why a batch was refused; the message names the field.
 #[derive(Debug, Clone, PartialEq)]

@@ -161,6 +161,16 @@ pub fn render_prometheus(sample: &Sample) -> String {
         "Policy-driven transitions of the run (PID warm-up transitions have no lag).",
         &one(live.policy_lag.count as f64),
     );
+    let pct = live.policy_lag_percentiles;
+    let quantile = |q: &str, v: Option<u64>| {
+        (format!("{{quantile=\"{q}\"}}"), v.map_or(f64::NAN, |v| v as f64))
+    };
+    metric(
+        "dvnav_policy_lag_versions_quantile",
+        "gauge",
+        "Percentiles of the policy lag over every policy-driven transition of the run (nearest rank; NaN before the first).",
+        &[quantile("0.5", pct.p50), quantile("0.95", pct.p95), quantile("0.99", pct.p99)],
+    );
     metric(
         "dvnav_stage",
         "gauge",

@@ -20,8 +20,12 @@ fn config() -> Config {
 fn batch(cfg: &Config, n: usize, version: u64, episodes: &[(u32, Outcome)]) -> TransitionBatch {
     let d = cfg.obs_dim();
     let mut b = TransitionBatch::with_capacity(d, n);
-    for _ in 0..n {
-        b.push(&vec![1.0; d], [0.0, 0.0], 0.1, &vec![1.0; d], false, false, version);
+    // The last transitions end the episodes, one each.
+    for i in 0..n {
+        let ends = (n - 1 - i < episodes.len()).then(|| episodes[n - 1 - i].1);
+        let terminated = ends.is_some_and(|o| o.is_terminal());
+        let truncated = ends == Some(Outcome::Timeout);
+        b.push(&vec![1.0; d], [0.0, 0.0], 0.1, &vec![1.0; d], terminated, truncated, version);
     }
     for &(stage, outcome) in episodes {
         b.episodes.push(EpisodeStats {
@@ -54,7 +58,7 @@ async fn state() -> Arc<LearnerState> {
         batch(&cfg, 3, 0, &[]),
     ];
     for (seq, b) in batches.iter().enumerate() {
-        s.ingest(wire::batch_to_proto(b, id, seq as u64)).await.unwrap();
+        s.ingest(id, wire::batch_to_proto(b, id, seq as u64)).await.unwrap();
     }
     s.set_connected(id, true);
     s
@@ -96,6 +100,10 @@ async fn prometheus_text_has_every_headline_metric() {
     assert_eq!(value(&text, "dvnav_policy_lag_versions_mean"), 2.0);
     assert_eq!(value(&text, "dvnav_policy_lag_versions_max"), 3.0);
     assert_eq!(value(&text, "dvnav_policy_lag_versions_count"), 6.0);
+    // Percentiles over the run: 0,0,3,3,3,3.
+    let q =
+        |p: &str| value(&text, &format!("dvnav_policy_lag_versions_quantile{{quantile=\"{p}\"}}"));
+    assert_eq!((q("0.5"), q("0.95"), q("0.99")), (3.0, 3.0, 3.0));
     assert_eq!(value(&text, "dvnav_stage_success_rate{stage=\"0\",room=\"env0\"}"), 0.5);
     assert_eq!(value(&text, "dvnav_stage_success_rate{stage=\"1\",room=\"env1\"}"), 1.0);
     assert_eq!(value(&text, "dvnav_actor_connected{actor=\"a-\\\"1\\\"\"}"), 1.0);
@@ -137,7 +145,7 @@ fn rates_come_from_the_sample_history() {
     assert_eq!(before.status.live.env_steps_per_s, 0.0);
     let id = s.register("a", dvnav_proto::PROTOCOL_VERSION).unwrap().actor_id;
     let rt = tokio::runtime::Builder::new_current_thread().build().unwrap();
-    rt.block_on(s.ingest(wire::batch_to_proto(&batch(&config(), 40, 1, &[]), id, 0))).unwrap();
+    rt.block_on(s.ingest(id, wire::batch_to_proto(&batch(&config(), 40, 1, &[]), id, 0))).unwrap();
     let after = sampler.sample(&s);
     let rate = after.status.live.env_steps_per_s;
     // 40 steps over a little more than 4 s.

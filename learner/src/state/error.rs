@@ -17,15 +17,45 @@ pub enum LearnerError {
     /// Missing or wrong shared token.
     #[error("missing or wrong access token")]
     Unauthenticated,
+    /// With per-actor tokens: a name registered without its own token (or, for a name the
+    /// file does not list, without the shared one).
+    #[error("actor {0:?} must present its own token (--actor-tokens)")]
+    ActorToken(String),
     /// A batch from an actor id that never registered.
     #[error("unknown actor id {0}; register first")]
     UnknownActor(u32),
+    /// A `Transitions` stream without a session credential.
+    #[error("no session credential (metadata `x-dvnav-session`); register first")]
+    NoSession,
+    /// A session credential that is not (or no longer) current.
+    #[error("unknown or replaced session credential; register again")]
+    UnknownSession,
+    /// A batch that claims another actor than the one its stream's session belongs to.
+    #[error("this stream speaks for actor {stream}, not actor {claimed}")]
+    WrongActor {
+        /// The actor the stream's session belongs to.
+        stream: u32,
+        /// The actor the batch claims.
+        claimed: u32,
+    },
+    /// A sequence number beyond the next one expected: a batch the learner never received
+    /// would have to have been sent before it.
+    #[error("batch sequence {got} skips ahead; the next expected is {expected}")]
+    SequenceGap {
+        /// What the batch carried.
+        got: u64,
+        /// The next sequence number of this actor.
+        expected: u64,
+    },
     /// A malformed batch.
     #[error("malformed transition batch: {0}")]
     Malformed(#[from] WireError),
     /// An invalid request field.
     #[error("invalid request: {0}")]
     InvalidRequest(String),
+    /// A new actor name past `learner.max_actor_names`.
+    #[error("{0} actor names are registered already (learner.max_actor_names)")]
+    TooManyActors(usize),
     /// The learner is shutting down.
     #[error("the learner is shutting down")]
     ShuttingDown,
@@ -38,9 +68,15 @@ impl LearnerError {
         match self {
             LearnerError::ProtocolMismatch { .. } => "protocol_version",
             LearnerError::Unauthenticated => "unauthenticated",
+            LearnerError::ActorToken(_) => "actor_token",
             LearnerError::UnknownActor(_) => "unknown_actor",
+            LearnerError::NoSession => "session_missing",
+            LearnerError::UnknownSession => "session_unknown",
+            LearnerError::WrongActor { .. } => "actor_mismatch",
+            LearnerError::SequenceGap { .. } => "sequence_gap",
             LearnerError::Malformed(e) => e.field,
             LearnerError::InvalidRequest(_) => "invalid_request",
+            LearnerError::TooManyActors(_) => "too_many_actors",
             LearnerError::ShuttingDown => "shutting_down",
         }
     }

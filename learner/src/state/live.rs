@@ -36,6 +36,72 @@ impl LagStats {
     }
 }
 
+/// Lags kept exactly up to this; a larger one counts as this plus one (the percentiles then
+/// read "more than 256").
+const LAG_BUCKETS: usize = 257;
+
+/// The distribution of the policy lag over a run, one count per lag in weight versions, for
+/// percentiles (a mean hides the tail that stale data is).
+#[derive(Clone, Debug, PartialEq)]
+pub struct LagHistogram {
+    counts: Vec<u64>,
+}
+
+impl Default for LagHistogram {
+    fn default() -> Self {
+        Self { counts: vec![0; LAG_BUCKETS + 1] }
+    }
+}
+
+impl LagHistogram {
+    /// Counts one transition of lag `lag`.
+    pub fn add(&mut self, lag: u64) {
+        let i = (lag as usize).min(LAG_BUCKETS);
+        self.counts[i] += 1;
+    }
+
+    /// The nearest-rank `q`-quantile (0 < q ≤ 1); `None` before any transition.
+    pub fn quantile(&self, q: f64) -> Option<u64> {
+        let n: u64 = self.counts.iter().sum();
+        if n == 0 {
+            return None;
+        }
+        let rank = ((q * n as f64).ceil() as u64).clamp(1, n);
+        let mut seen = 0;
+        self.counts
+            .iter()
+            .position(|&c| {
+                seen += c;
+                seen >= rank
+            })
+            .map(|i| i as u64)
+    }
+
+    /// p50, p95, p99 and the count.
+    pub fn percentiles(&self) -> LagPercentiles {
+        LagPercentiles {
+            p50: self.quantile(0.5),
+            p95: self.quantile(0.95),
+            p99: self.quantile(0.99),
+            count: self.counts.iter().sum(),
+        }
+    }
+}
+
+/// Percentiles of the policy lag (weight versions) over the run's policy-chosen transitions;
+/// `None` while only the PID controller has acted.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
+pub struct LagPercentiles {
+    /// Median.
+    pub p50: Option<u64>,
+    /// 95th percentile.
+    pub p95: Option<u64>,
+    /// 99th percentile.
+    pub p99: Option<u64>,
+    /// Transitions counted.
+    pub count: u64,
+}
+
 /// Episode outcomes of one curriculum stage.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct StageStats {
@@ -60,6 +126,7 @@ struct StageAcc {
 #[derive(Debug, Default)]
 struct LiveInner {
     lag: LagStats,
+    lag_histogram: LagHistogram,
     window_lag: LagStats,
     stages: BTreeMap<u32, StageAcc>,
     env_steps_per_s: f64,
@@ -81,6 +148,9 @@ pub struct LiveSnapshot {
     pub policy_lag: LagStats,
     /// Policy lag of the transitions of the latest sample interval.
     pub recent_policy_lag: LagStats,
+    /// Percentiles of the policy lag over the whole run.
+    #[serde(default)]
+    pub policy_lag_percentiles: LagPercentiles,
     /// Per stage, in stage order.
     pub stages: Vec<StageStats>,
 }
@@ -104,6 +174,7 @@ impl LiveMetrics {
             if v > 0 {
                 let lag = current_version.saturating_sub(v);
                 m.lag.add(lag);
+                m.lag_histogram.add(lag);
                 m.window_lag.add(lag);
             }
         }
@@ -127,6 +198,7 @@ impl LiveMetrics {
             updates_per_s: m.updates_per_s,
             policy_lag: m.lag,
             recent_policy_lag: m.recent_lag,
+            policy_lag_percentiles: m.lag_histogram.percentiles(),
             stages: m
                 .stages
                 .iter()
@@ -162,5 +234,27 @@ impl LiveMetrics {
     /// Stores the Prometheus text of the latest sample, for `GET /metrics`.
     pub fn set_text(&self, text: String) {
         self.lock().text = Arc::new(text);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lag_percentiles_are_nearest_rank_and_the_tail_is_capped() {
+        let mut h = LagHistogram::default();
+        assert_eq!(h.percentiles(), LagPercentiles::default());
+        for lag in 1..=100 {
+            h.add(lag);
+        }
+        assert_eq!(
+            h.percentiles(),
+            LagPercentiles { p50: Some(50), p95: Some(95), p99: Some(99), count: 100 }
+        );
+        let mut tail = LagHistogram::default();
+        tail.add(0);
+        tail.add(10_000);
+        assert_eq!((tail.quantile(0.5), tail.quantile(1.0)), (Some(0), Some(257)));
     }
 }

@@ -12,6 +12,7 @@
 //!   sampler's rates and text).
 //! - [`error`]: [`LearnerError`], why a request is refused.
 //! - [`saved`]: [`SavedState`], the state's part of a checkpoint.
+//! - [`sessions`]: [`Sessions`], the credential that binds a transition stream to its actor.
 //!
 //! The submodules are plain data and import nothing from this one; this one imports them.
 //!
@@ -22,19 +23,23 @@
 pub mod error;
 pub mod live;
 pub mod saved;
+pub mod sessions;
 pub mod status;
 
 pub use error::LearnerError;
-pub use live::{LagStats, LiveMetrics, LiveSnapshot, StageStats};
+pub use live::{LagHistogram, LagPercentiles, LagStats, LiveMetrics, LiveSnapshot, StageStats};
 pub use saved::SavedState;
+pub use sessions::Sessions;
 pub use status::{Ack, ActorCounters, Progress, Readiness, Registration, Stall, StatusSnapshot};
 
+use crate::actor_tokens::ActorTokens;
 use crate::curriculum::{Curriculum, CurriculumState};
 use crate::rate_limiter::RateLimiter;
 use crate::replay::{Batch, ObsCodec, ReplayBuffer};
 use crate::sac::UpdateMetrics;
 use crate::variable_source::VariableSource;
 use dvnav_config::Config;
+use dvnav_link::consistency::{self, EpisodeBounds};
 use dvnav_link::core::Variables;
 use dvnav_link::wire;
 use dvnav_proto as pb;
@@ -56,6 +61,7 @@ struct Counters {
     losses_finite: bool,
     done: bool,
     rejected_by_reason: BTreeMap<String, u64>,
+    sessions: Sessions,
     write_failures: BTreeMap<String, u64>,
     last_write_error: Option<String>,
     trainer_last_error: Option<String>,
@@ -67,6 +73,8 @@ pub struct LearnerState {
     config_toml: String,
     run_id: String,
     token: Option<String>,
+    actor_tokens: Option<ActorTokens>,
+    episode_bounds: EpisodeBounds,
     replay: Mutex<ReplayBuffer>,
     limiter: RateLimiter,
     counters: Mutex<Counters>,
@@ -114,14 +122,17 @@ impl LearnerState {
                 losses_finite: true,
                 done: false,
                 rejected_by_reason: BTreeMap::new(),
+                sessions: Sessions::default(),
                 write_failures: BTreeMap::new(),
                 last_write_error: None,
                 trainer_last_error: None,
             }),
             config_toml: cfg.to_toml_string(),
+            episode_bounds: EpisodeBounds::new(&cfg.env, cfg.curriculum.rooms.len()),
             cfg,
             run_id,
             token,
+            actor_tokens: None,
             variables,
             done: CancellationToken::new(),
             shutdown: CancellationToken::new(),
@@ -129,6 +140,13 @@ impl LearnerState {
             stalled: Mutex::new(Vec::new()),
             serving: AtomicBool::new(false),
         }
+    }
+
+    /// Per-actor tokens (`--actor-tokens`): a listed name registers only with its own token
+    /// (see [`ActorTokens`]).
+    pub fn with_actor_tokens(mut self, tokens: Option<ActorTokens>) -> Self {
+        self.actor_tokens = tokens;
+        self
     }
 
     /// The run's configuration.
@@ -156,22 +174,70 @@ impl LearnerState {
         &self.live
     }
 
-    /// Checks the shared token, when one is configured.
+    /// Checks the shared token, when one is configured; a refusal is counted under
+    /// `unauthenticated`.
     pub fn authorize(&self, presented: Option<&str>) -> Result<(), LearnerError> {
-        if dvnav_tls::auth::token_accepted(self.token.as_deref(), presented) {
+        let accepted = match &self.actor_tokens {
+            None => dvnav_tls::auth::token_accepted(self.token.as_deref(), presented),
+            // With per-actor tokens nothing is open: the shared token or a listed one.
+            Some(t) => {
+                let shared = self.token.is_some()
+                    && dvnav_tls::auth::token_accepted(self.token.as_deref(), presented);
+                shared | t.accepts_any(presented)
+            }
+        };
+        if accepted {
             Ok(())
         } else {
-            Err(LearnerError::Unauthenticated)
+            let e = LearnerError::Unauthenticated;
+            self.count_rejection(None, e.reason(), &e.to_string());
+            Err(e)
         }
     }
 
-    /// Registers an actor.
+    /// Binds a transition stream to the actor whose session `credential` it presents, and
+    /// marks that actor connected (undo with [`Self::set_connected`]). A missing or unknown
+    /// credential is refused and counted.
+    pub fn open_stream(&self, credential: Option<&str>) -> Result<u32, LearnerError> {
+        let found = {
+            let c = self.counters.lock().expect("counters lock");
+            match credential {
+                None => Err(LearnerError::NoSession),
+                Some(k) => c.sessions.actor(k).ok_or(LearnerError::UnknownSession),
+            }
+        };
+        match found {
+            Ok(id) => {
+                self.set_connected(id, true);
+                Ok(id)
+            }
+            Err(e) => {
+                self.count_rejection(None, e.reason(), &e.to_string());
+                tracing::warn!(error = %e, "refused a transition stream");
+                Err(e)
+            }
+        }
+    }
+
+    /// Registers an actor that presented no token of its own (in process; see
+    /// [`Self::register_presenting`]).
     pub fn register(
         &self,
         name: &str,
         protocol_version: u32,
     ) -> Result<Registration, LearnerError> {
-        self.register_checked(name, protocol_version).inspect_err(|e| {
+        self.register_presenting(name, protocol_version, None)
+    }
+
+    /// Registers an actor that presented the bearer token `presented`: with per-actor tokens a
+    /// listed name must have presented its own, a name not listed the shared one.
+    pub fn register_presenting(
+        &self,
+        name: &str,
+        protocol_version: u32,
+        presented: Option<&str>,
+    ) -> Result<Registration, LearnerError> {
+        self.register_checked(name, protocol_version, presented).inspect_err(|e| {
             self.count_rejection(None, e.reason(), &e.to_string());
             tracing::warn!(name, error = %e, "refused a registration");
         })
@@ -181,6 +247,7 @@ impl LearnerState {
         &self,
         name: &str,
         protocol_version: u32,
+        presented: Option<&str>,
     ) -> Result<Registration, LearnerError> {
         if protocol_version != dvnav_proto::PROTOCOL_VERSION {
             return Err(LearnerError::ProtocolMismatch {
@@ -191,12 +258,28 @@ impl LearnerState {
         if name.is_empty() || name.len() > 128 {
             return Err(LearnerError::InvalidRequest("actor_name must be 1 to 128 bytes".into()));
         }
+        if let Some(t) = &self.actor_tokens {
+            let own = match t.token_of(name) {
+                Some(expected) => dvnav_tls::auth::token_accepted(Some(expected), presented),
+                None => {
+                    self.token.is_some()
+                        && dvnav_tls::auth::token_accepted(self.token.as_deref(), presented)
+                }
+            };
+            if !own {
+                return Err(LearnerError::ActorToken(name.to_string()));
+            }
+        }
         if self.shutdown.is_cancelled() {
             return Err(LearnerError::ShuttingDown);
         }
         let mut c = self.counters.lock().expect("counters lock");
         // An actor that comes back under the same name keeps its id and counters.
         let existing = c.actors.values().find(|a| a.name == name).map(|a| a.actor_id);
+        let limit = self.cfg.learner.max_actor_names;
+        if existing.is_none() && c.actors.len() >= limit {
+            return Err(LearnerError::TooManyActors(limit));
+        }
         let actor_id = existing.unwrap_or_else(|| {
             let id = c.next_actor_id;
             c.next_actor_id += 1;
@@ -211,9 +294,10 @@ impl LearnerState {
         entry.registrations += 1;
         let next_sequence = entry.next_sequence;
         tracing::info!(actor_id, name, registrations = entry.registrations, "actor registered");
+        let session = c.sessions.issue(actor_id);
         let actor_seed =
             self.cfg.run.seed.wrapping_mul(1_000_003).wrapping_add(actor_id as u64 + 1);
-        Ok(Registration { actor_id, actor_seed, next_sequence })
+        Ok(Registration { actor_id, actor_seed, next_sequence, session })
     }
 
     /// Counts a refused request or batch under `reason`, and remembers `error` as the actor's
@@ -318,11 +402,19 @@ impl LearnerState {
         }
     }
 
-    /// Validates a batch and inserts it into the replay buffer, waiting first while ingestion is
-    /// ahead of training (backpressure). A batch whose sequence number was already inserted (a
-    /// resend after a reconnect) is acknowledged as a duplicate and not inserted again.
-    pub async fn ingest(&self, msg: pb::TransitionBatch) -> Result<Ack, LearnerError> {
-        let actor_id = msg.actor_id;
+    /// Validates a batch that arrived on a stream bound to `stream_actor`
+    /// ([`Self::open_stream`]) and inserts it into the replay buffer, waiting first while
+    /// ingestion is ahead of training (backpressure). Refused, and counted by reason: a batch
+    /// that claims another actor, one whose sequence number skips ahead of the next expected,
+    /// a malformed one, and one whose episode reports its transitions do not back
+    /// ([`consistency`]). A batch whose sequence number was already inserted (a resend after a
+    /// reconnect) is acknowledged as a duplicate and not inserted again.
+    pub async fn ingest(
+        &self,
+        stream_actor: u32,
+        msg: pb::TransitionBatch,
+    ) -> Result<Ack, LearnerError> {
+        let actor_id = stream_actor;
         let claimed = msg.count as u64;
         let sequence = msg.sequence;
         {
@@ -333,27 +425,38 @@ impl LearnerState {
                 tracing::warn!(actor_id, error = %e, "refused a batch");
                 return Err(e);
             };
+            let refusal = if msg.actor_id != actor_id {
+                Some(LearnerError::WrongActor { stream: actor_id, claimed: msg.actor_id })
+            } else if sequence > a.next_sequence {
+                Some(LearnerError::SequenceGap { got: sequence, expected: a.next_sequence })
+            } else {
+                None
+            };
+            if let Some(e) = refusal {
+                refuse_batch(&mut c, actor_id, claimed, &e);
+                return Err(e);
+            }
             if sequence < a.next_sequence {
                 a.duplicate_batches += 1;
                 tracing::debug!(actor_id, sequence, "duplicate batch acknowledged, not inserted");
                 return Ok(Ack { accepted: 0, duplicate: true });
             }
         }
-        let batch = match wire::batch_from_proto(msg, self.cfg.obs_dim()) {
+        let checked = wire::batch_from_proto(msg, self.cfg.obs_dim()).and_then(|b| {
+            consistency::check_episodes(&b, &self.episode_bounds)?;
+            Ok(b)
+        });
+        let batch = match checked {
             Ok(b) => b,
             Err(e) => {
-                let mut c = self.counters.lock().expect("counters lock");
-                // A batch refused for its count claims an untrusted number of transitions:
-                // count at most the largest batch there can be.
-                let claimed = claimed.min(wire::MAX_BATCH_TRANSITIONS as u64);
-                c.rejected += claimed;
-                *c.rejected_by_reason.entry(e.field.to_string()).or_default() += 1;
-                if let Some(a) = c.actors.get_mut(&actor_id) {
-                    a.transitions_rejected += claimed;
-                    a.last_error = Some(format!("malformed transition batch: {e}"));
-                }
-                tracing::warn!(actor_id, error = %e, "refused a malformed batch");
-                return Err(e.into());
+                let e = LearnerError::from(e);
+                refuse_batch(
+                    &mut self.counters.lock().expect("counters lock"),
+                    actor_id,
+                    claimed,
+                    &e,
+                );
+                return Err(e);
             }
         };
         // Cancelling this future here (the actor's stream broke while the batch waited) leaves
@@ -425,9 +528,10 @@ impl LearnerState {
                 );
             }
             self.done.cancel();
-            // Training ends with the budget; what actors still have in flight is accepted
-            // without waiting, so they can flush and leave.
-            self.limiter.close();
+            // Ingestion ends with the budget: what actors still have in flight is accepted
+            // without waiting, so they can flush and leave. Training goes on until it has
+            // done the updates the ratio owes for what came in (see `run`).
+            self.limiter.stop_ingest();
         }
         let warmup = c.episodes < self.cfg.warmup.pid_episodes;
         let (stage, room, done) = (c.curriculum.stage(), c.curriculum.room().to_string(), c.done);
@@ -600,6 +704,20 @@ impl LearnerState {
             actors: c.actors.values().cloned().collect(),
         }
     }
+}
+
+/// Counts a refused batch of `actor_id` that claimed `claimed` transitions under its reason,
+/// and logs it.
+fn refuse_batch(c: &mut Counters, actor_id: u32, claimed: u64, e: &LearnerError) {
+    // The claimed count is untrusted: count at most the largest batch there can be.
+    let claimed = claimed.min(wire::MAX_BATCH_TRANSITIONS as u64);
+    c.rejected += claimed;
+    *c.rejected_by_reason.entry(e.reason().to_string()).or_default() += 1;
+    if let Some(a) = c.actors.get_mut(&actor_id) {
+        a.transitions_rejected += claimed;
+        a.last_error = Some(e.to_string());
+    }
+    tracing::warn!(actor_id, error = %e, "refused a batch");
 }
 
 #[cfg(test)]

@@ -118,6 +118,8 @@ pub struct Registration {
     pub actor_seed: u64,
     /// The batch sequence number expected next from this actor name.
     pub next_sequence: u64,
+    /// The session credential its transition streams present.
+    pub session: String,
 }
 
 /// Whether the learner takes actors now (`GET /readyz`).

@@ -16,8 +16,9 @@ fn small_config() -> Config {
 fn batch(cfg: &Config, n: usize, actor_id: u32, seq: u64) -> pb::TransitionBatch {
     let d = cfg.obs_dim();
     let mut b = TransitionBatch::with_capacity(d, n);
-    for _ in 0..n {
-        b.push(&vec![1.0; d], [0.0, 0.0], 0.5, &vec![1.0; d], false, false, 1);
+    // The last transition ends the (timed-out) episode the batch reports.
+    for i in 0..n {
+        b.push(&vec![1.0; d], [0.0, 0.0], 0.5, &vec![1.0; d], false, i == n - 1, 1);
     }
     b.episodes.push(dvnav_link::core::EpisodeStats {
         env_index: 0,
@@ -37,23 +38,33 @@ async fn counts_accepted_and_rejected_and_stops_at_the_budget() {
     let cfg = small_config();
     let s = LearnerState::new(cfg.clone(), "r".into(), None, vec![]);
     let id = s.register("a", dvnav_proto::PROTOCOL_VERSION).unwrap().actor_id;
-    assert!(matches!(s.ingest(batch(&cfg, 2, 9, 0)).await, Err(LearnerError::UnknownActor(9))));
-    assert_eq!(s.ingest(batch(&cfg, 3, id, 0)).await.unwrap().accepted, 3);
+    assert!(matches!(
+        s.ingest(id, batch(&cfg, 2, 9, 0)).await,
+        Err(LearnerError::WrongActor { stream: 0, claimed: 9 })
+    ));
+    assert!(matches!(s.ingest(9, batch(&cfg, 2, 9, 0)).await, Err(LearnerError::UnknownActor(9))));
+    assert_eq!(s.ingest(id, batch(&cfg, 3, id, 0)).await.unwrap().accepted, 3);
     assert!(!s.variables().current().warmup, "one warm-up episode was configured");
     let mut bad = batch(&cfg, 2, id, 1);
     bad.rewards[0] = f32::INFINITY;
-    assert!(matches!(s.ingest(bad).await, Err(LearnerError::Malformed(_))));
+    assert!(matches!(s.ingest(id, bad).await, Err(LearnerError::Malformed(_))));
+    // Batch 1 was refused, so 2 would skip it.
+    assert!(matches!(
+        s.ingest(id, batch(&cfg, 3, id, 2)).await,
+        Err(LearnerError::SequenceGap { got: 2, expected: 1 })
+    ));
     assert!(!s.done_signal().is_cancelled());
     // A resend of batch 0 (after a reconnect) is acknowledged but not inserted again.
-    let dup = s.ingest(batch(&cfg, 3, id, 0)).await.unwrap();
+    let dup = s.ingest(id, batch(&cfg, 3, id, 0)).await.unwrap();
     assert_eq!(dup, Ack { accepted: 0, duplicate: true });
-    s.ingest(batch(&cfg, 3, id, 2)).await.unwrap();
+    s.ingest(id, batch(&cfg, 3, id, 1)).await.unwrap();
     // A restarted actor process is told where to continue its numbering.
-    assert_eq!(s.register("a", dvnav_proto::PROTOCOL_VERSION).unwrap().next_sequence, 3);
+    assert_eq!(s.register("a", dvnav_proto::PROTOCOL_VERSION).unwrap().next_sequence, 2);
     let st = s.status();
-    assert_eq!((st.transitions_received, st.transitions_rejected, st.episodes), (6, 2, 2));
+    // Refused: 2 claiming actor 9, 2 malformed, 3 skipping ahead.
+    assert_eq!((st.transitions_received, st.transitions_rejected, st.episodes), (6, 7, 2));
     assert_eq!(st.actors[0].transitions_received, 6);
-    assert_eq!(st.actors[0].transitions_rejected, 2);
+    assert_eq!(st.actors[0].transitions_rejected, 7);
     assert_eq!(st.actors[0].duplicate_batches, 1);
     assert!(st.done && s.done_signal().is_cancelled());
     assert!(s.variables().current().stop);
@@ -70,11 +81,11 @@ async fn a_sequence_number_is_inserted_once_across_streams_of_one_actor() {
     cfg.learner.max_steps_ahead = 3;
     let s = Arc::new(LearnerState::new(cfg.clone(), "r".into(), None, vec![]));
     let id = s.register("a", dvnav_proto::PROTOCOL_VERSION).unwrap().actor_id;
-    assert_eq!(s.ingest(batch(&cfg, 3, id, 0)).await.unwrap().accepted, 3);
+    assert_eq!(s.ingest(id, batch(&cfg, 3, id, 0)).await.unwrap().accepted, 3);
     // No updates: the next batches wait for room.
     let send = |seq| {
         let (s, b) = (s.clone(), batch(&cfg, 3, id, seq));
-        tokio::spawn(async move { s.ingest(b).await.unwrap() })
+        tokio::spawn(async move { s.ingest(id, b).await.unwrap() })
     };
     let (first, second) = (send(1), send(1));
     for _ in 0..10 {
@@ -119,10 +130,10 @@ async fn random_invalid_batches_are_refused_by_reason_and_never_reach_the_replay
         let n = rng.random_range(1..5usize);
         let mut m = batch(&cfg, n, id, seq);
         let sign = if rng.random() { 1.0 } else { -1.0 };
-        let expect: Option<(&str, Code)> = match i % 13 {
+        let expect: Option<(&str, Code)> = match i % 15 {
             0 => {
                 m.actor_id = rng.random_range(id + 1..=u32::MAX);
-                Some(("unknown_actor", Code::InvalidArgument))
+                Some(("actor_mismatch", Code::PermissionDenied))
             }
             1 => {
                 let k = rng.random_range(1..=d);
@@ -180,13 +191,22 @@ async fn random_invalid_batches_are_refused_by_reason_and_never_reach_the_replay
                 *by_reason.entry("protocol_version".into()).or_default() += 1;
                 None
             }
+            12 => {
+                m.sequence = seq + rng.random_range(1..=u64::MAX - seq);
+                Some(("sequence_gap", Code::FailedPrecondition))
+            }
+            13 => {
+                let fake = m.episodes[0].clone();
+                m.episodes.extend(std::iter::repeat_n(fake, rng.random_range(1..100)));
+                Some(("episode_count", Code::InvalidArgument))
+            }
             _ => None,
         };
-        if i % 13 == 11 {
+        if i % 15 == 11 {
             continue;
         }
         let claimed = (m.count as u64).min(wire::MAX_BATCH_TRANSITIONS as u64);
-        match (s.ingest(m).await, expect) {
+        match (s.ingest(id, m).await, expect) {
             (Ok(ack), None) => {
                 assert_eq!(ack, Ack { accepted: n as u32, duplicate: false });
                 seq += 1;
@@ -196,9 +216,7 @@ async fn random_invalid_batches_are_refused_by_reason_and_never_reach_the_replay
                 assert_eq!(e.reason(), reason, "case {i}: {e}");
                 assert_eq!(tonic::Status::from(e).code(), code, "case {i}");
                 *by_reason.entry(reason.into()).or_default() += 1;
-                if reason != "unknown_actor" {
-                    rejected += claimed;
-                }
+                rejected += claimed;
             }
             (r, expect) => panic!("case {i}: got {r:?}, expected {expect:?}"),
         }
@@ -211,7 +229,7 @@ async fn random_invalid_batches_are_refused_by_reason_and_never_reach_the_replay
     assert_eq!(st.transitions_rejected, rejected);
     assert_eq!(st.actors[0].transitions_rejected, rejected);
     assert!(st.actors[0].last_error.as_deref().unwrap().contains("malformed"));
-    assert_eq!(by_reason.len(), 9, "every reason was exercised: {by_reason:?}");
+    assert_eq!(by_reason.len(), 11, "every reason was exercised: {by_reason:?}");
     let text = crate::metrics::render_prometheus(&crate::metrics::Sample {
         elapsed_s: 0.0,
         status: st,
@@ -258,7 +276,7 @@ async fn random_bytes_through_the_decoder_and_ingestion_never_panic() {
             msg.sequence = s.status().actors[0].next_sequence;
         }
         let before = s.status().replay_size;
-        let accepted = match s.ingest(msg).await {
+        let accepted = match s.ingest(id, msg).await {
             Ok(ack) => ack.accepted as u64,
             Err(e) => {
                 let _ = tonic::Status::from(e);
@@ -286,4 +304,20 @@ fn refuses_other_protocol_versions_and_wrong_tokens() {
     let b = s.register("b", dvnav_proto::PROTOCOL_VERSION).unwrap().actor_id;
     assert_ne!(a, b);
     assert_eq!(s.register("a", dvnav_proto::PROTOCOL_VERSION).unwrap().actor_id, a);
+}
+
+#[test]
+fn new_actor_names_stop_at_the_limit_and_known_ones_come_back() {
+    let mut cfg = small_config();
+    cfg.learner.max_actor_names = 2;
+    let s = LearnerState::new(cfg, "r".into(), None, vec![]);
+    let v = dvnav_proto::PROTOCOL_VERSION;
+    let a = s.register("a", v).unwrap().actor_id;
+    s.register("b", v).unwrap();
+    let e = s.register("c", v).unwrap_err();
+    assert!(matches!(e, LearnerError::TooManyActors(2)), "{e}");
+    assert_eq!(tonic::Status::from(e).code(), tonic::Code::ResourceExhausted);
+    assert_eq!(s.register("a", v).unwrap().actor_id, a, "a known name still registers");
+    let st = s.status();
+    assert_eq!((st.actors.len(), st.rejected_by_reason.get("too_many_actors")), (2, Some(&1)));
 }

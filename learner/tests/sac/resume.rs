@@ -98,7 +98,11 @@ fn wire_batch(cfg: &Config, n: usize, seq: u64, outcome: Outcome) -> dvnav_proto
                 .collect()
         };
         let a = [((i as f32) * 0.3).sin(), ((seq as f32) * 0.7).cos()];
-        b.push(&v(0.3), a, i as f32 * 0.1 - 0.2, &v(0.5), i == n - 1, false, 1);
+        // The last transition ends the episode the batch reports.
+        let last = i == n - 1;
+        let (terminated, truncated) =
+            (last && outcome.is_terminal(), last && !outcome.is_terminal());
+        b.push(&v(0.3), a, i as f32 * 0.1 - 0.2, &v(0.5), terminated, truncated, 1);
     }
     b.episodes.push(EpisodeStats {
         env_index: 0,
@@ -132,7 +136,7 @@ async fn a_resumed_learner_process_continues_exactly() {
     state.register("actor-0", dvnav_proto::PROTOCOL_VERSION).unwrap();
     let outcomes = [Outcome::Success, Outcome::Collision, Outcome::Success, Outcome::Timeout];
     for seq in 0..7 {
-        state.ingest(wire_batch(&cfg, 6, seq, outcomes[seq as usize % 4])).await.unwrap();
+        state.ingest(0, wire_batch(&cfg, 6, seq, outcomes[seq as usize % 4])).await.unwrap();
     }
     let mut a = learner(&cfg, 1);
     let mut rng = trainer::sample_rng(cfg.run.seed);

@@ -57,6 +57,8 @@ pub(super) struct RunSummary {
     pub wall_time_s: f64,
     pub env_steps_per_s: f64,
     pub updates_per_s: f64,
+    /// Percentiles of the policy lag (weight versions) over the run.
+    pub policy_lag: Option<dvnav_learner::state::LagPercentiles>,
     pub learner_exit_status: Option<String>,
     pub clean_shutdown: bool,
     pub actor_restarts: usize,
@@ -183,6 +185,7 @@ pub(super) fn merge_summaries(
         wall_time_s: wall,
         env_steps_per_s: received.unwrap_or(0) as f64 / wall,
         updates_per_s: updates.unwrap_or(0) as f64 / wall,
+        policy_lag: status.map(|s| s.live.policy_lag_percentiles),
         learner_exit_status: learner.status.map(|s| s.to_string()),
         clean_shutdown: all_clean,
         actor_restarts: actors.iter().map(ActorSlot::restarts).sum(),

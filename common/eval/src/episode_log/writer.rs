@@ -9,6 +9,7 @@ use std::sync::Arc;
 use anyhow::{Context as _, Result, bail, ensure};
 use foxglove::messages::{FrameTransform, LaserScan, SceneUpdate, Timestamp, Vector3};
 use foxglove::{Channel, Context, McapCompression, McapWriteOptions, McapWriterHandle};
+use mcap::write::NoSeek;
 
 use super::proto_msg::Dvnav;
 use super::scene::{ROBOT_FRAME, WORLD_FRAME, episode_scene, path_update, yaw_quaternion};
@@ -20,7 +21,9 @@ use dvnav_sim::RoomSpec;
 
 /// Target uncompressed chunk size (bytes). A 540-beam step is about 4.7 KB before compression,
 /// so a 400-step episode (~1.9 MB) fits one chunk. The logger also closes the chunk at
-/// every episode end, so chunk size only bounds how much of the *open* episode a crash loses.
+/// every episode end, so chunk size only bounds how much of the *open* episode a crash loses,
+/// and how much memory a file's chunk buffer holds (chunks are built in memory, see
+/// [`EpisodeLogger`]).
 const CHUNK_SIZE: u64 = 2 * 1024 * 1024;
 
 /// The path so far goes out on `/path` every this many steps (and at the episode's last step).
@@ -130,7 +133,7 @@ impl Channels {
 
 /// The file being written.
 struct OpenFile {
-    handle: McapWriterHandle<BufWriter<File>>,
+    handle: McapWriterHandle<NoSeek<BufWriter<File>>>,
     path: PathBuf,
     /// Episodes finished in this file.
     episodes: u64,
@@ -172,8 +175,14 @@ struct OpenEpisode {
 /// **Crash safety.** Files are zstd-compressed and chunked. At every episode end the logger
 /// closes the current chunk and flushes it to the operating system
 /// ([`McapWriterHandle::flush`]), so a process killed at any point (SIGKILL) leaves every
-/// finished episode in complete chunks on disk and loses only the open episode; the reader
-/// ([`super::read_episodes`]) reads such a file up to the damage.
+/// finished episode in complete chunks on disk and loses only the open episode. Chunks are
+/// built in memory and written whole (the writer does not seek: [`NoSeek`]): a writer that
+/// seeks writes a chunk's header first with a placeholder length and patches it when the
+/// chunk closes, so a killed process left a chunk "of 2⁶⁴−1 bytes" at the end of the file,
+/// which stops every reader that walks records (the PyPI `mcap` package, even as a stream,
+/// read 0 messages of such a file). Now the bytes on disk always end at a record boundary
+/// (short of a kill in the middle of writing one); our reader ([`super::read_episodes`]) and
+/// any other read such a file up to there.
 ///
 /// **Rotation.** After `episodes_per_file` episodes, or at the first episode end at which the
 /// file has reached [`with_max_file_bytes`](Self::with_max_file_bytes), the file is finished
@@ -289,27 +298,26 @@ impl EpisodeLogger {
             .chunk_size(Some(CHUNK_SIZE))
             // Compress on the logging thread: an actor machine runs many actors, and zstd's
             // default of one worker per physical core per file would oversubscribe it.
-            .compression_threads(0);
+            .compression_threads(0)
+            // Chunks in memory, written whole: no placeholder header on disk (see the type).
+            .disable_seeking(true);
         loop {
             let index = self.next_index;
             self.next_index += 1;
             let path = self.dir.join(format!("{}-{index:05}.mcap", self.prefix));
-            let handle = match self
-                .ctx
-                .mcap_writer_with_options(options.clone())
-                .create_new_buffered_file(&path)
-            {
-                Ok(h) => h,
+            let file = match File::create_new(&path) {
+                Ok(f) => f,
                 // Someone else took this name since we listed the directory: take the next one.
-                Err(foxglove::FoxgloveError::IoError(e))
-                    if e.kind() == std::io::ErrorKind::AlreadyExists =>
-                {
-                    continue;
-                }
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
                 Err(e) => {
                     return Err(e).with_context(|| format!("creating {}", path.display()));
                 }
             };
+            let handle = self
+                .ctx
+                .mcap_writer_with_options(options.clone())
+                .create(NoSeek::new(BufWriter::new(file)))
+                .with_context(|| format!("starting {}", path.display()))?;
             handle
                 .write_metadata(METADATA_NAME, self.meta.to_map(index))
                 .with_context(|| format!("writing metadata to {}", path.display()))?;
@@ -323,6 +331,7 @@ impl EpisodeLogger {
         let OpenFile { handle, path, .. } = file;
         let writer = handle.close().with_context(|| format!("finishing {}", path.display()))?;
         let file = writer
+            .into_inner()
             .into_inner()
             .map_err(|e| e.into_error())
             .with_context(|| format!("flushing {}", path.display()))?;
