@@ -356,8 +356,8 @@ impl Controller for ControllerService {
         self.authorize(&req)?;
         let r = req.into_inner();
         let input = robot_input(&r)?;
-        // The policy runs on its own thread, batching what arrives together; this task waits
-        // without holding its worker (`dvst::policy_thread`).
+        // Calls arriving together share one forward pass; a waiting call does not hold its
+        // worker (`dvst::shared_policy`).
         let command = self.ctl.act_async(&input).await.inspect_err(|e| {
             tracing::debug!(robot = %r.robot_id, error = %e, "Act refused");
         });

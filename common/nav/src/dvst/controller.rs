@@ -34,9 +34,9 @@
 
 use super::footprint_file::VariedRobot;
 use super::laser_scan::{self, BeamLayout, LaserScan, MAX_RANGE_M};
-use super::policy_thread::{PolicyThread, Reply};
 use super::robots::{RobotTable, TableFull};
 use super::scale::MetaRobot;
+use super::shared_policy::{Reply, SharedPolicy};
 use super::transfer::{VelocityBounds, transfer_observation, transfer_policy};
 use crate::policy::NavPolicy;
 use dvnav_config::Config;
@@ -223,6 +223,21 @@ impl ControllerError {
     }
 }
 
+/// [`SharedPolicy`] of any policy, so that the controller need not name the policy's type.
+trait SharedAct: Send + Sync + std::fmt::Debug {
+    fn act_blocking(&self, obs: Vec<f32>) -> Reply;
+    fn act(&self, obs: Vec<f32>) -> std::pin::Pin<Box<dyn Future<Output = Reply> + Send + '_>>;
+}
+
+impl<P: NavPolicy + Send> SharedAct for SharedPolicy<P> {
+    fn act_blocking(&self, obs: Vec<f32>) -> Reply {
+        SharedPolicy::act_blocking(self, obs)
+    }
+    fn act(&self, obs: Vec<f32>) -> std::pin::Pin<Box<dyn Future<Output = Reply> + Send + '_>> {
+        Box::pin(SharedPolicy::act(self, obs))
+    }
+}
+
 /// A request checked and carried over to the meta robot, waiting for the policy (or already
 /// answered: arrived).
 struct Prepared {
@@ -233,10 +248,11 @@ struct Prepared {
 }
 
 /// A meta agent driving many varied robots through DVST, shared by the requests of a service.
-/// The meta agent runs on a thread of its own ([`PolicyThread`]).
+/// The meta agent is shared by the callers, batching what arrives together
+/// ([`SharedPolicy`]).
 #[derive(Debug)]
 pub struct DvstController {
-    policy: PolicyThread,
+    policy: Box<dyn SharedAct>,
     robots: Mutex<RobotTable<Arc<FootprintState>>>,
     /// The robot of `dvnav serve --footprint`: every robot without one of its own.
     default_robot: Arc<FootprintState>,
@@ -296,7 +312,7 @@ impl DvstController {
         let default_robot =
             Arc::new(footprint_state(robot, 1, meta_bounds, cfg.env.goal_tolerance)?);
         Ok(Self {
-            policy: PolicyThread::spawn(policy, "dvst-policy")?,
+            policy: Box::new(SharedPolicy::new(policy)),
             robots: Mutex::new(RobotTable::new(DEFAULT_MAX_ROBOTS, DEFAULT_ROBOT_IDLE)),
             default_robot,
             next_version: AtomicU64::new(2),
@@ -334,7 +350,7 @@ impl DvstController {
 
     /// The command for one control cycle. A malformed input is refused, naming the field,
     /// before the policy sees it. Blocks until the policy answers ([`act_async`](Self::act_async)
-    /// waits without blocking).
+    /// waits without blocking its thread).
     pub fn act(&self, input: &RobotInput) -> Result<Command, ControllerError> {
         let mut p = self.prepare(input)?;
         let reply = p.meta_obs.take().map(|obs| self.policy.act_blocking(obs));

@@ -12,8 +12,8 @@
 //!   a `NavPolicy`; the footprint can change at run time.
 //! - [`laser_scan`]: any LiDAR's scan (ROS `LaserScan`, REP 117), mounted anywhere on the
 //!   robot, resampled conservatively to the meta agent's beams.
-//! - [`policy_thread`]: [`policy_thread::PolicyThread`], a policy on its own thread answering
-//!   many callers, batching what arrives together.
+//! - [`shared_policy`]: [`shared_policy::SharedPolicy`], one policy answering many callers,
+//!   batching what arrives together.
 //! - [`robots`]: [`robots::RobotTable`], robots by id, bounded, expiring when silent.
 //! - [`controller`]: [`DvstController`], a meta agent driving many robots for many callers
 //!   (`dvnav serve`): checked and bounded requests, per-robot footprints changed atomically,
@@ -38,9 +38,9 @@ pub mod agent;
 pub mod controller;
 pub mod footprint_file;
 pub mod laser_scan;
-pub mod policy_thread;
 pub mod robots;
 pub mod scale;
+pub mod shared_policy;
 pub mod transfer;
 
 pub use agent::Dvst;
