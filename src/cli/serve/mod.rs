@@ -390,16 +390,7 @@ impl Controller for ControllerService {
     async fn info(&self, req: Request<pb::InfoRequest>) -> Result<Response<pb::InfoReply>, Status> {
         self.authorize(&req)?;
         let r = req.into_inner();
-        if r.robot_id.len() > dvnav_nav::dvst::controller::MAX_ROBOT_ID {
-            return Err(status(ControllerError::InvalidArgument {
-                field: "robot_id".into(),
-                reason: format!(
-                    "{} bytes; a robot id has at most {}",
-                    r.robot_id.len(),
-                    dvnav_nav::dvst::controller::MAX_ROBOT_ID
-                ),
-            }));
-        }
+        dvnav_nav::dvst::controller::check_robot_id(&r.robot_id).map_err(status)?;
         Ok(Response::new(info_reply(self.ctl.info(&r.robot_id))))
     }
 }

@@ -573,7 +573,8 @@ impl DvstController {
     }
 }
 
-fn check_robot_id(id: &str) -> Result<(), ControllerError> {
+/// A robot id within [`MAX_ROBOT_ID`] bytes, else the field's refusal.
+pub fn check_robot_id(id: &str) -> Result<(), ControllerError> {
     if id.len() > MAX_ROBOT_ID {
         let why = format!("{} bytes; a robot id has at most {MAX_ROBOT_ID}", id.len());
         return Err(ControllerError::invalid("robot_id", why));
