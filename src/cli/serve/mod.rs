@@ -72,6 +72,11 @@ pub fn run(args: ServeArgs) -> anyhow::Result<ExitCode> {
     let ctl = load_controller(&args.checkpoint, &args.footprint, args.margin)?
         .with_robot_limits(args.max_robots, Duration::from_secs_f64(args.robot_idle_s))
         .map_err(|e| anyhow::anyhow!("--max-robots / --robot-idle-s: {e:#}"))?;
+    let warm = std::time::Instant::now();
+    ctl.warm_up().map_err(|e| {
+        anyhow::anyhow!("{}: the policy failed its first pass: {e:#}", args.checkpoint.display())
+    })?;
+    tracing::debug!(ms = warm.elapsed().as_secs_f64() * 1e3, "policy warmed up");
     let ctl = Arc::new(ctl);
     let token = super::read_token(args.token_file.as_deref())?;
     let tls = args.tls.load()?;

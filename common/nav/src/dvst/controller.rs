@@ -60,6 +60,9 @@ pub const MAX_FOOTPRINT_TOML: usize = 64 * 1024;
 pub const DEFAULT_MAX_ROBOTS: usize = 256;
 /// How long a robot may be silent before its place and footprint are dropped, by default.
 pub const DEFAULT_ROBOT_IDLE: Duration = Duration::from_secs(600);
+/// Forward passes [`DvstController::warm_up`] runs: the first pays the first-use costs, the
+/// next ones settle the allocator.
+const WARM_UP_PASSES: usize = 3;
 
 /// The model a controller drives with, as it reports it.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -336,6 +339,31 @@ impl DvstController {
         *self.robots.lock().unwrap_or_else(PoisonError::into_inner) =
             RobotTable::new(max_robots, idle);
         Ok(self)
+    }
+
+    /// Runs the policy once, on an open room with the goal ahead, so the first robot's first
+    /// command does not pay for the forward pass's first-use costs (weights paged in,
+    /// buffers allocated): a robot's control loop gives a call a few milliseconds, and a
+    /// server should be ready when it says it listens. Counts no command and no robot.
+    pub fn warm_up(&self) -> Result<(), ControllerError> {
+        let b = self.beams;
+        let mut obs = vec![self.scan_range[1] as f32; obs_dim(b)];
+        obs[b + GOAL_DISTANCE] = 1.0;
+        obs[b + GOAL_ANGLE] = 0.0;
+        obs[b + LINEAR_VELOCITY] = 0.0;
+        obs[b + ANGULAR_VELOCITY] = 0.0;
+        for _ in 0..WARM_UP_PASSES {
+            let (v, omega) = self
+                .policy
+                .act_blocking(obs.clone())
+                .map_err(|e| ControllerError::Policy(anyhow::Error::msg(e)))?;
+            if !(v.is_finite() && omega.is_finite()) {
+                return Err(ControllerError::Policy(anyhow::anyhow!(
+                    "the meta policy answered a non-finite command ({v}, {omega}) to an open room"
+                )));
+            }
+        }
+        Ok(())
     }
 
     /// Scan length the meta form of a request must carry.

@@ -456,3 +456,12 @@ fn a_laser_scan_drives_the_agent_like_the_same_scan_in_its_own_layout() {
     ));
     assert!(c.unwrap().v > 0.0);
 }
+
+#[test]
+fn warming_up_runs_the_policy_but_counts_no_command_and_no_robot() {
+    let (ctl, calls) = counter_controller(&footprint("paper-medium.toml"));
+    ctl.warm_up().unwrap();
+    assert_eq!(calls.load(Ordering::SeqCst), WARM_UP_PASSES as u64);
+    let info = ctl.info("");
+    assert_eq!((info.commands, info.robots), (0, 0));
+}
