@@ -26,7 +26,10 @@ use tokio::sync::mpsc;
 /// Batches transitions for the gRPC stream.
 pub struct BatchingAdder {
     writer: BatchWriter,
+    /// The most transitions a batch holds (`actor.batch_transitions`).
     batch_size: usize,
+    /// The size of the batch being filled: `batch_size`, or less as the learner advises.
+    target: usize,
     tx: mpsc::Sender<EncodedBatch>,
     max_delay: Duration,
     /// When the batch being filled got its first transition or episode.
@@ -50,6 +53,7 @@ impl BatchingAdder {
         Self {
             writer: BatchWriter::new(obs_dim, batch_size),
             batch_size,
+            target: batch_size,
             tx,
             max_delay,
             opened: None,
@@ -60,7 +64,8 @@ impl BatchingAdder {
 
     /// Starts each batch only with a credit from `credits`: the loop blocks before the
     /// batch's first transition while `actor.max_batches_in_flight` batches await an
-    /// acknowledgement.
+    /// acknowledgement. The batch then holds what the learner advised with its last
+    /// acknowledgement, if that is fewer than `batch_size`.
     pub fn with_credits(mut self, credits: Arc<Credits>) -> Self {
         self.credits = Some(credits);
         self
@@ -69,7 +74,7 @@ impl BatchingAdder {
     /// Notes the batch's first content, and whether it is due: full, or open for `max_delay`.
     fn due(&mut self) -> bool {
         let opened = *self.opened.get_or_insert_with(Instant::now);
-        self.writer.len() >= self.batch_size || opened.elapsed() >= self.max_delay
+        self.writer.len() >= self.target || opened.elapsed() >= self.max_delay
     }
 
     fn send(&mut self) -> anyhow::Result<()> {
@@ -105,7 +110,8 @@ impl Adder for BatchingAdder {
         if self.writer.is_empty()
             && let Some(c) = &self.credits
         {
-            c.take()?;
+            let advice = c.take()?;
+            self.target = advice.map_or(self.batch_size, |a| a.clamp(1, self.batch_size));
         }
         self.writer.add(env, action, reward, next_obs, terminated, truncated, policy_version)?;
         // An episode's last step waits for its report (see the module docs).
@@ -175,6 +181,26 @@ mod tests {
         credits.give(1);
         let adder = next.join().unwrap();
         assert_eq!(adder.writer.len(), 1);
+    }
+
+    #[test]
+    fn batches_hold_what_the_learner_advises_up_to_their_own_size() {
+        let (tx, mut rx) = mpsc::channel(16);
+        let credits = Arc::new(Credits::new(8));
+        let mut adder =
+            BatchingAdder::new(4, 8, Duration::from_secs(60), tx).with_credits(credits.clone());
+        adder.add_first(0, &[0.5; 4]).unwrap();
+        add(&mut adder, 8);
+        assert_eq!(rx.try_recv().unwrap().len(), 8, "no advice: the configured size");
+        credits.advise(3);
+        add(&mut adder, 6);
+        assert_eq!((rx.try_recv().unwrap().len(), rx.try_recv().unwrap().len()), (3, 3));
+        credits.advise(100);
+        add(&mut adder, 8);
+        assert_eq!(rx.try_recv().unwrap().len(), 8, "never more than its own size");
+        credits.advise(0);
+        add(&mut adder, 8);
+        assert_eq!(rx.try_recv().unwrap().len(), 8, "advice withdrawn");
     }
 
     #[test]

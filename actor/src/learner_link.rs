@@ -241,6 +241,8 @@ pub struct Registered {
     pub next_sequence: u64,
     /// The credential its transition streams present.
     pub session: String,
+    /// The learner's advice on batch size (0: none; see [`Credits`]).
+    pub batch_transitions: u32,
 }
 
 /// Registers `name` with the learner; `tls`: whether the connection is TLS (for the hint a
@@ -274,6 +276,7 @@ pub async fn register(client: &mut Client, name: &str, tls: bool) -> anyhow::Res
         run_id: reply.run_id,
         next_sequence: reply.next_sequence,
         session: reply.session,
+        batch_transitions: reply.batch_transitions,
     })
 }
 
@@ -444,6 +447,8 @@ impl Session<'_> {
         let receive = async {
             while let Some(ack) = acks.message().await.map_err(status)? {
                 let done = self.outbox.lock().expect("link lock").ack(ack.sequence);
+                // The advice first: the batch this credit starts follows it.
+                self.credits.advise(ack.batch_transitions);
                 self.credits.give(done);
                 let mut c = self.counters.lock().expect("link lock");
                 c.batches_acked += 1;
@@ -517,6 +522,7 @@ pub async fn run_link(
     };
     let mut reg = first;
     loop {
+        credits.advise(reg.batch_transitions);
         let follower =
             tokio::spawn(follow_variables(client.clone(), reg.actor_id, variables.clone()));
         let end = session.run(&mut client, &reg, &mut batches).await;

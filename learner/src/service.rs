@@ -159,6 +159,7 @@ impl Learner for LearnerService {
             run_id: self.state.run_id().to_string(),
             next_sequence: reg.next_sequence,
             session: reg.session,
+            batch_transitions: self.state.batch_transitions_advice(true),
         }))
     }
 
@@ -209,6 +210,7 @@ impl Learner for LearnerService {
                                     sequence,
                                     accepted: ack.accepted,
                                     duplicate: ack.duplicate,
+                                    batch_transitions: state.batch_transitions_advice(false),
                                 };
                                 if tx.send(Ok(ack)).await.is_err() {
                                     break ("the actor went away".to_string(), false);

@@ -197,6 +197,13 @@ pub struct LearnerConfig {
     /// How many environment steps ingestion may run ahead of what the replay ratio allows
     /// before the learner stops reading transitions (backpressure to the actors).
     pub max_steps_ahead: u64,
+    /// About how many transitions all actors' unacknowledged batches hold together: each
+    /// actor is told to fill batches of this divided by the connected actors (at most its own
+    /// `actor.batch_transitions`, at least 8). What waits in flight was acted by an old policy,
+    /// so the policy lag of inserted data is about this × `sac.updates_per_env_step` /
+    /// `publish_every_updates` weight versions (256 × 0.25 / 50 ≈ 1.3 by default), whatever
+    /// the number of actors.
+    pub transitions_in_flight: usize,
     /// Threads for the learner's tensor math (0: all cores). Default 1: candle 0.11's CPU
     /// thread pool synchronizes with spin barriers, which on a small machine shared with actors
     /// made two threads slower than one (docs/results.md, "Learner threads").
@@ -227,6 +234,7 @@ impl Default for LearnerConfig {
             checkpoint_every_s: 300.0,
             max_actor_names: 1024,
             max_steps_ahead: 2_000,
+            transitions_in_flight: 256,
             threads: 1,
             eval_every_updates: 2_000,
             eval_episodes: 10,
@@ -528,6 +536,9 @@ impl Config {
             ));
         }
         non_negative("learner.liveness_stall_s", le.liveness_stall_s)?;
+        if le.transitions_in_flight == 0 {
+            return Err(bad("learner.transitions_in_flight", "must be at least 1"));
+        }
         let a = &self.actor;
         if a.envs == 0 {
             return Err(bad("actor.envs", "must be at least 1"));

@@ -385,6 +385,18 @@ impl LearnerState {
         Some(a.clone())
     }
 
+    /// The most transitions an actor's next batches should hold: its share of
+    /// `learner.transitions_in_flight` among the connected actors (`joining`: counting one more,
+    /// an actor registering before its stream opens). See [`share_of_in_flight`].
+    pub fn batch_transitions_advice(&self, joining: bool) -> u32 {
+        let connected = {
+            let c = self.counters.lock().expect("counters lock");
+            c.actors.values().filter(|a| a.connected).count()
+        };
+        let budget = self.config().learner.transitions_in_flight;
+        share_of_in_flight(budget, connected + usize::from(joining)) as u32
+    }
+
     /// Records that a gRPC service serves this state (see [`LearnerState::readiness`]).
     pub fn set_serving(&self) {
         self.serving.store(true, Ordering::SeqCst);
@@ -704,6 +716,18 @@ impl LearnerState {
             actors: c.actors.values().cloned().collect(),
         }
     }
+}
+
+/// The fewest transitions the learner asks an actor to batch: below this, per-batch costs
+/// (a message, an acknowledgement, each environment's first observation) outweigh freshness.
+pub const MIN_ADVISED_BATCH: usize = 8;
+
+/// Each of `actors` actors' share of `budget` transitions in flight, at least
+/// [`MIN_ADVISED_BATCH`]: with one batch in flight per actor, all of them together hold about
+/// `budget`, so what the learner inserts was acted at most about `budget` steps of training
+/// ago, whether two actors run or twenty.
+pub fn share_of_in_flight(budget: usize, actors: usize) -> usize {
+    budget.div_ceil(actors.max(1)).max(MIN_ADVISED_BATCH)
 }
 
 /// Counts a refused batch of `actor_id` that claimed `claimed` transitions under its reason,

@@ -321,3 +321,27 @@ fn new_actor_names_stop_at_the_limit_and_known_ones_come_back() {
     let st = s.status();
     assert_eq!((st.actors.len(), st.rejected_by_reason.get("too_many_actors")), (2, Some(&1)));
 }
+
+#[test]
+fn actors_share_the_transitions_in_flight() {
+    assert_eq!(share_of_in_flight(256, 0), 256);
+    assert_eq!(share_of_in_flight(256, 2), 128);
+    assert_eq!(share_of_in_flight(256, 3), 86, "rounded up: the shares cover the budget");
+    assert_eq!(share_of_in_flight(256, 8), 32);
+    assert_eq!(share_of_in_flight(256, 100), MIN_ADVISED_BATCH);
+    let mut cfg = small_config();
+    cfg.learner.transitions_in_flight = 64;
+    let s = LearnerState::new(cfg, "r".into(), None, vec![]);
+    let v = dvnav_proto::PROTOCOL_VERSION;
+    assert_eq!(s.batch_transitions_advice(true), 64, "the first actor to join gets it all");
+    let regs: Vec<Registration> = ["a", "b", "c", "d"].map(|n| s.register(n, v).unwrap()).into();
+    // Registered is not connected: only open streams count.
+    assert_eq!(s.batch_transitions_advice(false), 64);
+    for r in &regs {
+        s.open_stream(Some(&r.session)).unwrap();
+    }
+    assert_eq!(s.batch_transitions_advice(false), 16);
+    assert_eq!(s.batch_transitions_advice(true), 13, "a fifth joining");
+    s.set_connected(regs[0].actor_id, false);
+    assert_eq!(s.batch_transitions_advice(false), 22);
+}
