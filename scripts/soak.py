@@ -19,6 +19,8 @@ p.add_argument("--minutes", type=float, default=10)
 p.add_argument("--actors", type=int, default=8)
 p.add_argument("--out", default=None)
 p.add_argument("--sample-s", type=float, default=15)
+p.add_argument("--heap-sample-s", type=float, default=1.0,
+               help="seconds between readings of the learner's heap in use (RSS: --sample-s)")
 p.add_argument("--growth-mib", type=float, default=16)
 p.add_argument("--replay-capacity", type=int, default=10000)
 p.add_argument("--eval-every-updates", type=int, default=None,
@@ -71,8 +73,17 @@ samples = []  # (t, name, rss)
 heap = []  # (t, learner heap in use MiB)
 start = time.time()
 deadline = start + a.minutes * 60
+next_rss = start + a.sample_s
 while time.time() < deadline and train.poll() is None:
-    time.sleep(a.sample_s)
+    # The heap swings by tens of MiB with the update in flight, so its floor needs many
+    # readings: one a second (a 15-s cadence once failed a flat run on 7 readings a third).
+    time.sleep(a.heap_sample_s)
+    h = heap_in_use_mib()
+    if h is not None:
+        heap.append((time.time() - start, h))
+    if time.time() < next_rss:
+        continue
+    next_rss += a.sample_s
     try:
         pids = json.load(open(os.path.join(run, "pids.json")))
     except (OSError, ValueError):
@@ -83,9 +94,6 @@ while time.time() < deadline and train.poll() is None:
         r = rss_mib(pid)
         if r is not None:
             samples.append((t, name, r))
-    h = heap_in_use_mib()
-    if h is not None:
-        heap.append((t, h))
     print(f"soak: {t:5.0f} s " + " ".join(f"{n}={r:.0f}" for tt, n, r in samples if tt == t),
           flush=True)
 crashed = train.poll() is not None

@@ -37,6 +37,8 @@ pub struct BatchingAdder {
     /// Batches that may await an acknowledgement; one is taken per batch, at its first
     /// transition (see [`Credits`]).
     credits: Option<Arc<Credits>>,
+    /// A credit is taken for the batch being filled (or about to be).
+    holds_credit: bool,
     /// Transitions handed to the stream.
     pub handed_over: u64,
 }
@@ -58,6 +60,7 @@ impl BatchingAdder {
             max_delay,
             opened: None,
             credits: None,
+            holds_credit: false,
             handed_over: 0,
         }
     }
@@ -83,6 +86,7 @@ impl BatchingAdder {
         }
         let full = EncodedBatch::new(&self.writer.take());
         self.opened = None;
+        self.holds_credit = false;
         let n = full.len() as u64;
         self.tx
             .blocking_send(full)
@@ -107,12 +111,7 @@ impl Adder for BatchingAdder {
         truncated: bool,
         policy_version: u64,
     ) -> anyhow::Result<()> {
-        if self.writer.is_empty()
-            && let Some(c) = &self.credits
-        {
-            let advice = c.take()?;
-            self.target = advice.map_or(self.batch_size, |a| a.clamp(1, self.batch_size));
-        }
+        self.ready()?;
         self.writer.add(env, action, reward, next_obs, terminated, truncated, policy_version)?;
         // An episode's last step waits for its report (see the module docs).
         if self.due() && !(terminated || truncated) {
@@ -131,6 +130,19 @@ impl Adder for BatchingAdder {
 
     fn flush(&mut self) -> anyhow::Result<()> {
         self.send()
+    }
+
+    /// Takes the next batch's credit, if it needs one and has none yet: blocks while
+    /// `actor.max_batches_in_flight` batches await an acknowledgement.
+    fn ready(&mut self) -> anyhow::Result<()> {
+        if let Some(c) = &self.credits
+            && !self.holds_credit
+        {
+            let advice = c.take()?;
+            self.target = advice.map_or(self.batch_size, |a| a.clamp(1, self.batch_size));
+            self.holds_credit = true;
+        }
+        Ok(())
     }
 }
 
@@ -181,6 +193,29 @@ mod tests {
         credits.give(1);
         let adder = next.join().unwrap();
         assert_eq!(adder.writer.len(), 1);
+    }
+
+    #[test]
+    fn ready_waits_for_the_next_batch_s_credit_and_takes_it_once() {
+        let (tx, mut rx) = mpsc::channel(16);
+        let credits = Arc::new(Credits::new(1));
+        let mut adder =
+            BatchingAdder::new(4, 4, Duration::from_secs(60), tx).with_credits(credits.clone());
+        adder.add_first(0, &[0.5; 4]).unwrap();
+        adder.ready().unwrap();
+        adder.ready().unwrap();
+        add(&mut adder, 4);
+        assert_eq!(rx.try_recv().unwrap().len(), 4);
+        let next = std::thread::spawn(move || {
+            adder.ready().unwrap();
+            adder
+        });
+        std::thread::sleep(Duration::from_millis(100));
+        assert!(!next.is_finished(), "the next step waits before it acts");
+        credits.give(1);
+        let mut adder = next.join().unwrap();
+        add(&mut adder, 1);
+        assert_eq!(adder.writer.len(), 1, "the credit taken by ready serves the batch");
     }
 
     #[test]

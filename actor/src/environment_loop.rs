@@ -214,6 +214,9 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
 
     /// One step of every environment. Returns false when the learner says stop.
     pub fn step(&mut self) -> anyhow::Result<bool> {
+        // Before the weights are read: a step whose transitions must wait for the learner
+        // waits here, and then acts with what the learner published meanwhile.
+        self.adder.ready()?;
         let vars = self.source.latest();
         if let Some(v) = &vars {
             if v.stop {

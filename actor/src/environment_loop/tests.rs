@@ -278,3 +278,75 @@ fn same_seed_gives_identical_transitions() {
     assert_eq!(enc(&a), enc(&b));
     assert_ne!(enc(&a), enc(&c));
 }
+
+/// A source whose weights can change between steps, as the learner's stream changes them.
+struct Swappable(Arc<std::sync::Mutex<Arc<Variables>>>);
+
+impl VariableSource for Swappable {
+    fn latest(&self) -> Option<Arc<Variables>> {
+        Some(self.0.lock().unwrap().clone())
+    }
+}
+
+/// An adder that makes its third step wait, and the learner publishes version 4 meanwhile.
+struct WaitsOnce {
+    inner: VecAdder,
+    vars: Arc<std::sync::Mutex<Arc<Variables>>>,
+    readies: usize,
+}
+
+impl Adder for WaitsOnce {
+    fn add_first(&mut self, env: usize, obs: &[f32]) -> anyhow::Result<()> {
+        self.inner.add_first(env, obs)
+    }
+    fn add(
+        &mut self,
+        env: usize,
+        action: [f32; ACTION_DIM],
+        reward: f32,
+        next_obs: &[f32],
+        terminated: bool,
+        truncated: bool,
+        policy_version: u64,
+    ) -> anyhow::Result<()> {
+        self.inner.add(env, action, reward, next_obs, terminated, truncated, policy_version)
+    }
+    fn add_episode(&mut self, stats: EpisodeStats) -> anyhow::Result<()> {
+        self.inner.add_episode(stats)
+    }
+    fn flush(&mut self) -> anyhow::Result<()> {
+        self.inner.flush()
+    }
+    fn ready(&mut self) -> anyhow::Result<()> {
+        self.readies += 1;
+        if self.readies == 3 {
+            let mut v = self.vars.lock().unwrap();
+            *v = Arc::new(Variables { version: 4, ..(**v).clone() });
+        }
+        Ok(())
+    }
+}
+
+#[test]
+fn a_step_that_waits_for_the_learner_acts_with_the_weights_published_meanwhile() {
+    let mut cfg = Config::default();
+    cfg.actor.envs = 3;
+    let vars = Arc::new(std::sync::Mutex::new(Arc::new(Variables {
+        version: 3,
+        policy: Arc::new(policy_bytes(&cfg)),
+        stage: 0,
+        room: cfg.curriculum.rooms[0].clone(),
+        warmup: false,
+        stop: false,
+    })));
+    let adder = WaitsOnce { inner: VecAdder::default(), vars: vars.clone(), readies: 0 };
+    let mut el = EnvironmentLoop::new(cfg, "t".into(), 0, 1, adder, Swappable(vars), None).unwrap();
+    for _ in 0..5 {
+        assert!(el.step().unwrap());
+    }
+    let (adder, _) = el.finish().unwrap();
+    let versions = &adder.inner.batch.policy_versions;
+    assert_eq!(versions.len(), 15);
+    assert_eq!(versions[..6], [3; 6], "steps 1 and 2");
+    assert_eq!(versions[6..], [4; 9], "step 3 waited, then acted with version 4");
+}

@@ -415,6 +415,13 @@ pub trait Adder {
     fn add_episode(&mut self, stats: EpisodeStats) -> anyhow::Result<()>;
     /// Sends whatever is buffered.
     fn flush(&mut self) -> anyhow::Result<()>;
+    /// Waits until the adder can take the next step's transitions, so that the loop chooses
+    /// the step's actions only then, with the newest weights it has: a loop that chose them and
+    /// then waited would hand over actions of a policy as old as the wait. An adder with
+    /// nothing to wait for is ready at once.
+    fn ready(&mut self) -> anyhow::Result<()> {
+        Ok(())
+    }
 }
 
 /// What the learner tells its actors: weights, the stage to run, and the run's phase.
