@@ -2,8 +2,9 @@
 //! acknowledgements for good batches, and a shutdown through a oneshot, never a sleep.
 
 use dvnav_config::Config;
+use dvnav_link::wire::batch_to_proto;
 use dvnav_proto::{PROTOCOL_VERSION, StatusRequest, VariablesRequest};
-use support::{batch, bound, bound_iter, register, start, start_limited, start_with};
+use support::{Server, batch, bound, bound_iter, register, start, start_limited, start_with};
 use tonic::Code;
 
 mod support;
@@ -230,5 +231,54 @@ async fn an_oversized_message_is_refused_and_the_learner_keeps_serving() {
     assert_eq!(acks.message().await.unwrap().unwrap().accepted, 4);
     let status = c.status(StatusRequest {}).await.unwrap().into_inner();
     assert_eq!(status.transitions_received, 4);
+    s.shutdown().await;
+}
+
+/// An open transition stream of one actor: batches in, acknowledgements out.
+struct OpenStream {
+    tx: tokio::sync::mpsc::Sender<dvnav_proto::TransitionBatch>,
+    acks: tonic::Streaming<dvnav_proto::BatchAck>,
+}
+
+impl OpenStream {
+    async fn open(s: &Server, session: &str) -> Self {
+        let (tx, rx) = tokio::sync::mpsc::channel(4);
+        let req = bound(session, tokio_stream::wrappers::ReceiverStream::new(rx));
+        let acks = s.client().await.transitions(req).await.unwrap().into_inner();
+        Self { tx, acks }
+    }
+
+    async fn send(&mut self, m: dvnav_proto::TransitionBatch) -> dvnav_proto::BatchAck {
+        self.tx.send(m).await.unwrap();
+        self.acks.message().await.unwrap().expect("an acknowledgement")
+    }
+}
+
+#[tokio::test]
+async fn each_actor_is_advised_its_share_of_the_transitions_in_flight() {
+    let mut cfg = Config::default();
+    cfg.run.steps = 1_000;
+    cfg.learner.transitions_in_flight = 64;
+    let s = start_with(cfg.clone(), None).await;
+    let mut c = s.client().await;
+    let a = c.register(register("a", PROTOCOL_VERSION)).await.unwrap().into_inner();
+    assert_eq!(a.batch_transitions, 64, "alone");
+    let mut sa = OpenStream::open(&s, &a.session).await;
+    let ack = sa.send(batch_to_proto(&batch(&cfg, 4), a.actor_id, 0)).await;
+    assert_eq!((ack.accepted, ack.batch_transitions), (4, 64));
+    let b = c.register(register("b", PROTOCOL_VERSION)).await.unwrap().into_inner();
+    assert_eq!(b.batch_transitions, 32, "a connected, b joining");
+    let mut sb = OpenStream::open(&s, &b.session).await;
+    assert_eq!(sb.send(batch_to_proto(&batch(&cfg, 4), b.actor_id, 0)).await.batch_transitions, 32);
+    assert_eq!(sa.send(batch_to_proto(&batch(&cfg, 4), a.actor_id, 1)).await.batch_transitions, 32);
+    // B goes away: A gets the whole budget back.
+    drop(sb);
+    let gone = std::time::Instant::now();
+    while s.state.status().actors[b.actor_id as usize].connected {
+        assert!(gone.elapsed().as_secs() < 10, "b's stream never ended");
+        tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+    }
+    assert_eq!(sa.send(batch_to_proto(&batch(&cfg, 4), a.actor_id, 2)).await.batch_transitions, 64);
+    drop(sa);
     s.shutdown().await;
 }

@@ -199,10 +199,10 @@ pub struct LearnerConfig {
     pub max_steps_ahead: u64,
     /// About how many transitions all actors' unacknowledged batches hold together: each
     /// actor is told to fill batches of this divided by the connected actors (at most its own
-    /// `actor.batch_transitions`, at least 8). What waits in flight was acted by an old policy,
-    /// so the policy lag of inserted data is about this × `sac.updates_per_env_step` /
-    /// `publish_every_updates` weight versions (256 × 0.25 / 50 ≈ 1.3 by default), whatever
-    /// the number of actors.
+    /// `actor.batch_transitions`, at least 8). What waits in flight was acted by an old policy:
+    /// inserted data was acted about this many environment steps ago, about this ×
+    /// `sac.updates_per_env_step` / `publish_every_updates` weight versions (128 × 0.25 / 50 ≈
+    /// 0.6 by default) whatever the number of actors (measured: docs/results.md, issue 16).
     pub transitions_in_flight: usize,
     /// Threads for the learner's tensor math (0: all cores). Default 1: candle 0.11's CPU
     /// thread pool synchronizes with spin barriers, which on a small machine shared with actors
@@ -234,7 +234,7 @@ impl Default for LearnerConfig {
             checkpoint_every_s: 300.0,
             max_actor_names: 1024,
             max_steps_ahead: 2_000,
-            transitions_in_flight: 256,
+            transitions_in_flight: 128,
             threads: 1,
             eval_every_updates: 2_000,
             eval_episodes: 10,
