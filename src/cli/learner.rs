@@ -92,6 +92,9 @@ pub fn run(mut args: LearnerArgs) -> anyhow::Result<ExitCode> {
         let listener = tokio::net::TcpListener::bind(&args.listen)
             .await
             .map_err(|e| anyhow::anyhow!("cannot listen on {}: {e}", args.listen))?;
+        // Before the address file and the `resumed` line: a SIGTERM from then on stops the
+        // learner gracefully.
+        let shutdown = super::shutdown_signal();
         let addr = listener.local_addr()?;
         tracing::info!(
             %addr,
@@ -139,7 +142,7 @@ pub fn run(mut args: LearnerArgs) -> anyhow::Result<ExitCode> {
                 device,
                 tls,
             },
-            super::shutdown_signal(),
+            shutdown,
         )
         .await?;
         tracing::info!(

@@ -81,6 +81,8 @@ pub fn run(args: ServeArgs) -> anyhow::Result<ExitCode> {
     let token = super::read_token(args.token_file.as_deref())?;
     let tls = args.tls.load()?;
     super::runtime()?.block_on(async move {
+        // Before the address file: from then on a SIGTERM stops the server gracefully.
+        let shutdown = super::shutdown_signal();
         let listener = tokio::net::TcpListener::bind(&args.listen)
             .await
             .map_err(|e| anyhow::anyhow!("cannot listen on {}: {e}", args.listen))?;
@@ -106,7 +108,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<ExitCode> {
         if let Some(f) = &args.addr_file {
             write_addr_file(f, addr)?;
         }
-        serve(listener, super::shutdown_signal(), ctl.clone(), token, tls).await?;
+        serve(listener, shutdown, ctl.clone(), token, tls).await?;
         tracing::info!(commands = ctl.info("").commands, "controller stopped");
         Ok(ExitCode::SUCCESS)
     })

@@ -213,7 +213,12 @@ pub(super) fn run_one(args: TrainArgs) -> anyhow::Result<ExitCode> {
         let interrupted = interrupted.clone();
         std::thread::spawn(move || {
             if let Ok(rt) = tokio::runtime::Builder::new_current_thread().enable_all().build() {
-                rt.block_on(super::shutdown_signal());
+                // The handlers need the runtime's reactor (see `shutdown_signal`).
+                let signal = {
+                    let _in_runtime = rt.enter();
+                    super::shutdown_signal()
+                };
+                rt.block_on(signal);
                 interrupted.cancel();
             }
         });
