@@ -34,8 +34,8 @@ pub struct BatchingAdder {
     max_delay: Duration,
     /// When the batch being filled got its first transition or episode.
     opened: Option<Instant>,
-    /// Batches that may await an acknowledgement; one is taken per batch, at its first
-    /// transition (see [`Credits`]).
+    /// Batches that may await an acknowledgement; one is taken per batch, before the step
+    /// that starts it ([`Adder::ready`]; see [`Credits`]).
     credits: Option<Arc<Credits>>,
     /// A credit is taken for the batch being filled (or about to be).
     holds_credit: bool,
@@ -65,8 +65,8 @@ impl BatchingAdder {
         }
     }
 
-    /// Starts each batch only with a credit from `credits`: the loop blocks before the
-    /// batch's first transition while `actor.max_batches_in_flight` batches await an
+    /// Starts each batch only with a credit from `credits`: the loop blocks before the step
+    /// that starts a batch while `actor.max_batches_in_flight` batches await an
     /// acknowledgement. The batch then holds what the learner advised with its last
     /// acknowledgement, if that is fewer than `batch_size`.
     pub fn with_credits(mut self, credits: Arc<Credits>) -> Self {

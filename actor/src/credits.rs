@@ -9,7 +9,8 @@
 //! actor acts its next batch only once the learner has taken the last, so what the learner
 //! inserts was acted a batch ago, not a queue ago.
 //!
-//! The adder takes a credit when a batch gets its first transition; the link gives it back
+//! The adder takes a credit before the step that starts a batch (`Adder::ready`, so the step
+//! acts with the weights that arrived while it waited); the link gives it back
 //! when the learner acknowledges the batch (inserted or a duplicate), and closes the credits
 //! when it ends, so a loop waiting for one fails instead of hanging.
 //!
