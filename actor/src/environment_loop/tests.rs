@@ -7,6 +7,10 @@ use dvnav_nav::nets::{Actor, init_seeded, varmap_to_safetensors};
 struct VecAdder {
     writer: Option<BatchWriter>,
     batch: TransitionBatch,
+    /// Called with the step's number (from 1) when the loop asks whether the adder is ready:
+    /// what happens while a step waits for the learner.
+    on_ready: Option<Box<dyn FnMut(usize)>>,
+    readies: usize,
 }
 
 impl Adder for VecAdder {
@@ -35,6 +39,13 @@ impl Adder for VecAdder {
         if let Some(w) = self.writer.as_mut() {
             anyhow::ensure!(self.batch.is_empty(), "flushed twice");
             self.batch = w.take();
+        }
+        Ok(())
+    }
+    fn ready(&mut self) -> anyhow::Result<()> {
+        self.readies += 1;
+        if let Some(f) = self.on_ready.as_mut() {
+            f(self.readies);
         }
         Ok(())
     }
@@ -288,45 +299,6 @@ impl VariableSource for Swappable {
     }
 }
 
-/// An adder that makes its third step wait, and the learner publishes version 4 meanwhile.
-struct WaitsOnce {
-    inner: VecAdder,
-    vars: Arc<std::sync::Mutex<Arc<Variables>>>,
-    readies: usize,
-}
-
-impl Adder for WaitsOnce {
-    fn add_first(&mut self, env: usize, obs: &[f32]) -> anyhow::Result<()> {
-        self.inner.add_first(env, obs)
-    }
-    fn add(
-        &mut self,
-        env: usize,
-        action: [f32; ACTION_DIM],
-        reward: f32,
-        next_obs: &[f32],
-        terminated: bool,
-        truncated: bool,
-        policy_version: u64,
-    ) -> anyhow::Result<()> {
-        self.inner.add(env, action, reward, next_obs, terminated, truncated, policy_version)
-    }
-    fn add_episode(&mut self, stats: EpisodeStats) -> anyhow::Result<()> {
-        self.inner.add_episode(stats)
-    }
-    fn flush(&mut self) -> anyhow::Result<()> {
-        self.inner.flush()
-    }
-    fn ready(&mut self) -> anyhow::Result<()> {
-        self.readies += 1;
-        if self.readies == 3 {
-            let mut v = self.vars.lock().unwrap();
-            *v = Arc::new(Variables { version: 4, ..(**v).clone() });
-        }
-        Ok(())
-    }
-}
-
 #[test]
 fn a_step_that_waits_for_the_learner_acts_with_the_weights_published_meanwhile() {
     let mut cfg = Config::default();
@@ -339,13 +311,23 @@ fn a_step_that_waits_for_the_learner_acts_with_the_weights_published_meanwhile()
         warmup: false,
         stop: false,
     })));
-    let adder = WaitsOnce { inner: VecAdder::default(), vars: vars.clone(), readies: 0 };
+    // The third step waits, and the learner publishes version 4 meanwhile.
+    let published = vars.clone();
+    let adder = VecAdder {
+        on_ready: Some(Box::new(move |step| {
+            if step == 3 {
+                let mut v = published.lock().unwrap();
+                *v = Arc::new(Variables { version: 4, ..(**v).clone() });
+            }
+        })),
+        ..VecAdder::default()
+    };
     let mut el = EnvironmentLoop::new(cfg, "t".into(), 0, 1, adder, Swappable(vars), None).unwrap();
     for _ in 0..5 {
         assert!(el.step().unwrap());
     }
     let (adder, _) = el.finish().unwrap();
-    let versions = &adder.inner.batch.policy_versions;
+    let versions = &adder.batch.policy_versions;
     assert_eq!(versions.len(), 15);
     assert_eq!(versions[..6], [3; 6], "steps 1 and 2");
     assert_eq!(versions[6..], [4; 9], "step 3 waited, then acted with version 4");
