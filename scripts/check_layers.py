@@ -27,6 +27,7 @@ ALLOWED = {
     "dvnav-link": {"dvnav-sim", "dvnav-proto"},
     "dvnav-eval": {"dvnav-sim", "dvnav-config", "dvnav-nav", "dvnav-link", "dvnav-proto"},
     "dvnav-tls": set(),
+    "dvnav-render": {"dvnav-sim", "dvnav-nav"},
     "dvnav-actor": {"dvnav-sim", "dvnav-config", "dvnav-nav", "dvnav-link", "dvnav-eval",
                     "dvnav-tls", "dvnav-proto"},
     "dvnav-learner": {"dvnav-sim", "dvnav-config", "dvnav-nav", "dvnav-link", "dvnav-eval",

@@ -6,7 +6,8 @@
 //! scenarios); `inspect` reads MCAP episode logs and `plot` draws them ([`render`]).
 
 mod cli;
-mod render;
+/// The figures: [`dvnav_render`], known here as `render`.
+use dvnav_render as render;
 
 use clap::Parser;
 

@@ -35,7 +35,7 @@ pub fn draw(canvas: &mut Canvas, x: f32, y: f32, s: &str, scale: u32, color: Rgb
 
 #[cfg(test)]
 mod tests {
-    use super::super::{INK, WHITE};
+    use crate::{INK, WHITE};
     use super::*;
 
     /// The pixels of `s` drawn at scale 1, as rows of '#' and '.'.

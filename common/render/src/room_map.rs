@@ -144,7 +144,7 @@ pub fn render_room(
 
 #[cfg(test)]
 mod tests {
-    use super::super::room::FLOOR;
+    use crate::room::FLOOR;
     use super::*;
     use dvnav_sim::{Route, SpawnRegion, TimedObstacle};
 

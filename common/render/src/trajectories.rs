@@ -224,7 +224,7 @@ fn draw_legend(canvas: &mut Canvas, panels: &[RoomPanel], y: f32) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::room::FLOOR;
+    use crate::room::FLOOR;
 
     fn room() -> RoomSpec {
         RoomSpec::empty("t", 8.0)

@@ -1,6 +1,9 @@
+//! # dvnav-render
+//!
 //! Figures as PNG, drawn in pure Rust: [`tiny_skia`] rasterizes shapes and an embedded 8x8
 //! bitmap font ([`text`]) writes labels, so rendering needs no system fonts or graphics
-//! libraries and gives the same pixels on every machine.
+//! libraries and gives the same pixels on every machine. The `dvnav` command's figures and the
+//! Python package's `render_mode = "rgb_array"` frames both come from here.
 //!
 //! # Layout
 //! - [`Canvas`]: a pixmap with the few primitives figures use (lines, polygons, discs, text).
@@ -11,11 +14,12 @@
 //! - [`room_map`]: `dvnav rooms show`, a room with its spawn regions, routes, timed obstacles
 //!   and a robot footprint.
 //! - [`dvst`]: `dvnav transfer --out`, the meta, varied and dimension-scaled robots.
-//!
-//! Later figures (the gate test) add modules here.
+//! - [`replay`]: `dvnav replay --figure`, a recorded scan and the robot's path.
+//! - [`frame`]: one moment of a [`dvnav_sim::NavEnv`]: room, robot, LiDAR rays and goal.
 
 pub mod curves;
 pub mod dvst;
+pub mod frame;
 pub mod replay;
 pub mod room;
 pub mod room_map;
@@ -153,6 +157,17 @@ impl Canvas {
     /// The image as PNG bytes.
     pub fn encode_png(&self) -> anyhow::Result<Vec<u8>> {
         Ok(self.pixmap.encode_png()?)
+    }
+
+    /// The pixels as rows of RGB bytes, top row first (`height · width · 3` values), alpha
+    /// dropped: the layout of Gymnasium's `rgb_array` frames.
+    pub fn rgb(&self) -> Vec<u8> {
+        let mut out = Vec::with_capacity(self.pixmap.pixels().len() * 3);
+        for p in self.pixmap.pixels() {
+            let c = p.demultiply();
+            out.extend_from_slice(&[c.red(), c.green(), c.blue()]);
+        }
+        out
     }
 }
 

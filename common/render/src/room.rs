@@ -57,7 +57,7 @@ pub fn draw_room(canvas: &mut Canvas, view: &WorldView, room: &RoomSpec) {
 
 #[cfg(test)]
 mod tests {
-    use super::super::WHITE;
+    use crate::WHITE;
     use super::*;
 
     #[test]
