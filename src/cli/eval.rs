@@ -176,31 +176,15 @@ fn robot_policy(
             Ok((Box::new(agent), 1.0))
         }
         Transfer::Dvst => {
-            let trained = cfg
-                .env
-                .footprint
-                .clone()
-                .unwrap_or_else(|| Footprint::circle(cfg.env.robot_radius));
-            let meta = MetaRobot::from_footprint(&trained).ok_or_else(|| {
-                anyhow::anyhow!("DVST needs a circular or rectangular meta robot; the checkpoint's robot is `{}`", trained.name)
-            })?;
-            let mut robot = match robot {
-                Some(r) => {
-                    anyhow::ensure!(
-                        r.meta == meta,
-                        "the footprint file's meta robot differs from the checkpoint's (`{}`)",
-                        trained.name
-                    );
-                    r.clone()
-                }
-                None => VariedRobot { meta, ..VariedRobot::new(Footprint::circle(radius)) },
-            };
+            let meta = MetaRobot::trained(&cfg.env)?;
+            let mut robot = robot.cloned().unwrap_or_else(|| VariedRobot {
+                meta,
+                ..VariedRobot::new(Footprint::circle(radius))
+            });
             if let Some(m) = margin {
                 robot.margin = m;
             }
-            let lidar = &cfg.env.lidar;
-            let dvst = Dvst::new(agent, robot)?
-                .with_scan_range(Some([lidar.range_min, lidar.range_max]))?;
+            let dvst = Dvst::for_run(agent, &cfg.env, robot)?;
             let mu = dvst.mu();
             Ok((Box::new(dvst), mu))
         }

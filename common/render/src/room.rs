@@ -57,8 +57,8 @@ pub fn draw_room(canvas: &mut Canvas, view: &WorldView, room: &RoomSpec) {
 
 #[cfg(test)]
 mod tests {
-    use crate::WHITE;
     use super::*;
+    use crate::WHITE;
 
     #[test]
     fn walls_floor_and_each_obstacle_shape_are_drawn_where_they_are() {

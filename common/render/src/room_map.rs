@@ -144,8 +144,8 @@ pub fn render_room(
 
 #[cfg(test)]
 mod tests {
-    use crate::room::FLOOR;
     use super::*;
+    use crate::room::FLOOR;
     use dvnav_sim::{Route, SpawnRegion, TimedObstacle};
 
     #[test]

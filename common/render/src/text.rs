@@ -35,8 +35,8 @@ pub fn draw(canvas: &mut Canvas, x: f32, y: f32, s: &str, scale: u32, color: Rgb
 
 #[cfg(test)]
 mod tests {
-    use crate::{INK, WHITE};
     use super::*;
+    use crate::{INK, WHITE};
 
     /// The pixels of `s` drawn at scale 1, as rows of '#' and '.'.
     fn ascii_art(s: &str) -> Vec<String> {

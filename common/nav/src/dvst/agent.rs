@@ -4,8 +4,8 @@ use super::footprint_file::VariedRobot;
 use super::scale::MetaRobot;
 use super::transfer::{VelocityBounds, transfer_observation, transfer_policy};
 use crate::policy::NavPolicy;
-use dvnav_sim::Footprint;
 use dvnav_sim::obs::obs_dim;
+use dvnav_sim::{EnvConfig, Footprint};
 
 /// The meta policy `P` wrapped by DVST: a [`NavPolicy`] for the varied robot. Each
 /// [`act`](NavPolicy::act) transfers the varied robot's observation to the meta robot
@@ -34,6 +34,19 @@ impl<P: NavPolicy> Dvst<P> {
         bounds.validate()?;
         let scratch = vec![0.0; obs_dim(meta.beams())];
         Ok(Self { mu: robot.mu(), meta, robot, bounds, scan_range: None, scratch })
+    }
+
+    /// `meta`, the agent of a run whose env config is `env`, for `robot`: the robot's meta
+    /// robot must be the one that run trained ([`MetaRobot::trained`]), and transferred scans
+    /// keep within that run's LiDAR range ([`with_scan_range`](Dvst::with_scan_range)).
+    pub fn for_run(meta: P, env: &EnvConfig, robot: VariedRobot) -> anyhow::Result<Self> {
+        let trained = MetaRobot::trained(env)?;
+        anyhow::ensure!(
+            robot.meta == trained,
+            "the footprint file's meta robot ({:?}) is not the one the model was trained as ({trained:?})",
+            robot.meta
+        );
+        Self::new(meta, robot)?.with_scan_range(Some([env.lidar.range_min, env.lidar.range_max]))
     }
 
     /// Keeps transferred scans within `[min, max]` (m), the range of the LiDAR the meta policy
@@ -137,6 +150,7 @@ mod tests {
     use dvnav_sim::obs::{ANGULAR_VELOCITY, GOAL_ANGLE, GOAL_DISTANCE, LINEAR_VELOCITY};
 
     /// A meta policy that records what it saw and answers a fixed command.
+    #[derive(Debug)]
     struct Recorder {
         seen: Vec<Vec<f32>>,
         command: (f64, f64),
@@ -153,6 +167,19 @@ mod tests {
         fn velocity_bounds(&self) -> (f64, f64) {
             (0.5, 1.5)
         }
+    }
+
+    #[test]
+    fn for_a_run_the_robot_s_meta_robot_is_the_trained_one_and_scans_keep_its_range() {
+        let rec = || Recorder { seen: Vec::new(), command: (0.1, 0.1) };
+        let env = EnvConfig::default();
+        let robot = VariedRobot::new(Footprint::circle(0.4));
+        let dvst = Dvst::for_run(rec(), &env, robot.clone()).unwrap();
+        assert_eq!(dvst.scan_range, Some([env.lidar.range_min, env.lidar.range_max]));
+        assert_eq!(dvst.mu(), 2.0);
+        let other = EnvConfig { robot_radius: 0.3, ..EnvConfig::default() };
+        let e = Dvst::for_run(rec(), &other, robot).unwrap_err().to_string();
+        assert!(e.contains("not the one the model was trained as"), "{e}");
     }
 
     #[test]

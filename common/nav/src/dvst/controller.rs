@@ -40,8 +40,8 @@ use super::shared_policy::{Reply, SharedPolicy};
 use super::transfer::{VelocityBounds, transfer_observation, transfer_policy};
 use crate::policy::NavPolicy;
 use dvnav_config::Config;
+use dvnav_sim::SpecFileError;
 use dvnav_sim::obs::{ANGULAR_VELOCITY, GOAL_ANGLE, GOAL_DISTANCE, LINEAR_VELOCITY, obs_dim};
-use dvnav_sim::{Footprint, SpecFileError};
 use std::f64::consts::{PI, TAU};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
@@ -299,14 +299,7 @@ impl DvstController {
         if let Some(m) = margin {
             anyhow::ensure!(m.is_finite() && m >= 0.0, "the margin must be ≥ 0 m, got {m}");
         }
-        let trained =
-            cfg.env.footprint.clone().unwrap_or_else(|| Footprint::circle(cfg.env.robot_radius));
-        let meta = MetaRobot::from_footprint(&trained).ok_or_else(|| {
-            anyhow::anyhow!(
-                "DVST needs a circular or rectangular meta robot; the model was trained as `{}`",
-                trained.name
-            )
-        })?;
+        let meta = MetaRobot::trained(&cfg.env)?;
         let (v_max, omega_max) = policy.velocity_bounds();
         let meta_bounds = VelocityBounds { v_max, omega_max };
         meta_bounds.validate()?;

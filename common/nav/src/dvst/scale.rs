@@ -9,7 +9,7 @@
 //! of clearance from the robot. It is a length in metres, so it means the same for a small and
 //! a large robot, which a factor on μ would not.
 
-use dvnav_sim::{Footprint, ObstacleSpec, Point};
+use dvnav_sim::{EnvConfig, Footprint, ObstacleSpec, Point};
 use serde::{Deserialize, Serialize};
 
 /// Radius (m) of the default meta robot, the circle the shipped agent was trained with
@@ -114,6 +114,18 @@ impl MetaRobot {
             }
             _ => None,
         }
+    }
+
+    /// The meta robot a run trained (its `env.footprint`, else the disc of `env.robot_radius`),
+    /// or an error naming it when it is neither a centred disc nor an unrotated box.
+    pub fn trained(env: &EnvConfig) -> anyhow::Result<MetaRobot> {
+        let trained = env.footprint.clone().unwrap_or_else(|| Footprint::circle(env.robot_radius));
+        MetaRobot::from_footprint(&trained).ok_or_else(|| {
+            anyhow::anyhow!(
+                "DVST needs a circular or rectangular meta robot; the model was trained as `{}`",
+                trained.name
+            )
+        })
     }
 
     /// Whether `p` (robot frame, m) lies in the shape, boundary included, up to `tol` (m).

@@ -1,6 +1,7 @@
 use super::*;
 use crate::dvst::Dvst;
 use crate::policy::MetaAgent;
+use dvnav_sim::Footprint;
 use std::path::Path;
 use std::sync::Arc;
 
