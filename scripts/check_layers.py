@@ -28,6 +28,7 @@ ALLOWED = {
     "dvnav-eval": {"dvnav-sim", "dvnav-config", "dvnav-nav", "dvnav-link", "dvnav-proto"},
     "dvnav-tls": set(),
     "dvnav-render": {"dvnav-sim", "dvnav-nav"},
+    "dvnav-python": {"dvnav-sim", "dvnav-config", "dvnav-nav", "dvnav-render"},
     "dvnav-actor": {"dvnav-sim", "dvnav-config", "dvnav-nav", "dvnav-link", "dvnav-eval",
                     "dvnav-tls", "dvnav-proto"},
     "dvnav-learner": {"dvnav-sim", "dvnav-config", "dvnav-nav", "dvnav-link", "dvnav-eval",

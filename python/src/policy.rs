@@ -1,0 +1,127 @@
+//! [`Policy`]: a trained meta agent for Python, alone or driving another robot through DVST.
+
+use crate::setup::value_error;
+use dvnav_nav::control::velocity_to_action;
+use dvnav_nav::dvst::{Dvst, VariedRobot};
+use dvnav_nav::policy::{MetaAgent, NavPolicy, read_policy};
+use dvnav_sim::EnvConfig;
+use numpy::{PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+use std::path::Path;
+
+/// The deterministic policy of a checkpoint or model directory (a = tanh(μ(s))), as `dvnav
+/// eval` and `dvnav serve` run it. With a footprint file it is the meta agent in DVST for that
+/// robot: observations are the robot's own, commands within its own bounds.
+#[pyclass(module = "dvnav._core")]
+pub struct Policy {
+    policy: Box<dyn NavPolicy + Send + Sync>,
+    /// The run's `[env]`: the action scale (v_max, ω_max) of its environments.
+    env: EnvConfig,
+    mu: f64,
+    path: String,
+}
+
+#[pymethods]
+impl Policy {
+    /// `path`: a model or checkpoint directory, or its `policy.safetensors`; `footprint`: a
+    /// footprint file for DVST (its meta robot must be the one the model was trained as);
+    /// `margin` (m) replaces the file's margin.
+    #[staticmethod]
+    #[pyo3(signature = (path, footprint=None, margin=None))]
+    fn load(path: &str, footprint: Option<&str>, margin: Option<f64>) -> PyResult<Policy> {
+        let file = read_policy(Path::new(path)).map_err(value_error)?;
+        let agent = MetaAgent::from_policy_file(&file).map_err(value_error)?;
+        let env = file.config.env.clone();
+        let (policy, mu): (Box<dyn NavPolicy + Send + Sync>, f64) = match footprint {
+            None => {
+                if margin.is_some() {
+                    return Err(value_error(anyhow::anyhow!("a margin needs a footprint file")));
+                }
+                (Box::new(agent), 1.0)
+            }
+            Some(f) => {
+                let mut robot = VariedRobot::load(Path::new(f)).map_err(value_error)?;
+                if let Some(m) = margin {
+                    robot.margin = m;
+                }
+                let dvst = Dvst::for_run(agent, &env, robot).map_err(value_error)?;
+                let mu = dvst.mu();
+                (Box::new(dvst), mu)
+            }
+        };
+        Ok(Policy { policy, env, mu, path: file.path.display().to_string() })
+    }
+
+    /// Commands (v m/s, ω rad/s) for observations `obs` (n x obs_dim), one row each.
+    fn velocities<'py>(
+        &mut self,
+        py: Python<'py>,
+        obs: PyReadonlyArray2<'py, f32>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let commands = self.commands(py, &obs)?;
+        let flat: Vec<f64> = commands.iter().flat_map(|&(v, w)| [v, w]).collect();
+        numpy::PyArray1::from_vec(py, flat).reshape([commands.len(), 2])
+    }
+
+    /// The same commands as normalized actions in [−1, 1]² (n x 2), the action space of
+    /// environments with the run's env config.
+    fn actions<'py>(
+        &mut self,
+        py: Python<'py>,
+        obs: PyReadonlyArray2<'py, f32>,
+    ) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let commands = self.commands(py, &obs)?;
+        let flat: Vec<f32> =
+            commands.iter().flat_map(|&(v, w)| velocity_to_action(v, w, &self.env)).collect();
+        numpy::PyArray1::from_vec(py, flat).reshape([commands.len(), 2])
+    }
+
+    /// Length of one observation.
+    #[getter]
+    fn obs_dim(&self) -> usize {
+        self.policy.obs_dim()
+    }
+
+    /// μ, the DVST scale (1 without a footprint).
+    #[getter]
+    fn mu(&self) -> f64 {
+        self.mu
+    }
+
+    /// (v_max, ω_max) of the commands: the robot's own in DVST.
+    #[getter]
+    fn velocity_bounds(&self) -> (f64, f64) {
+        self.policy.velocity_bounds()
+    }
+
+    /// The run's `[env]` section as JSON: make environments with it to match the agent.
+    #[getter]
+    fn env_config(&self) -> String {
+        serde_json::to_string(&self.env).expect("the env config serializes")
+    }
+
+    /// The weights file read.
+    #[getter]
+    fn path(&self) -> String {
+        self.path.clone()
+    }
+}
+
+impl Policy {
+    fn commands(
+        &mut self,
+        py: Python<'_>,
+        obs: &PyReadonlyArray2<'_, f32>,
+    ) -> PyResult<Vec<(f64, f64)>> {
+        let d = self.policy.obs_dim();
+        if obs.shape()[1] != d {
+            return Err(value_error(anyhow::anyhow!(
+                "observations have {} values; this policy takes {d}",
+                obs.shape()[1]
+            )));
+        }
+        let data = obs.as_slice().map_err(value_error)?;
+        let policy = &mut self.policy;
+        py.detach(|| policy.act_batch(data)).map_err(value_error)
+    }
+}

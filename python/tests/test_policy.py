@@ -1,0 +1,86 @@
+"""dvnav.Policy: the shipped agent from Python, batched, and in DVST for another robot."""
+
+import numpy as np
+import pytest
+
+import dvnav
+from conftest import MODEL, ROOT
+
+
+def observations(n, seed=0):
+    envs = dvnav.NavVectorEnv(num_envs=n, room="env3", seed=seed)
+    return envs.reset()[0]
+
+
+def test_one_observation_or_a_batch_gives_the_same_actions():
+    policy = dvnav.Policy.load(str(MODEL))
+    obs = observations(8)
+    batch = policy(obs)
+    assert batch.shape == (8, 2) and batch.dtype == np.float32
+    assert (np.abs(batch) <= 1).all()
+    for i in range(8):
+        assert np.allclose(policy(obs[i]), batch[i], atol=1e-6)
+    v = policy.velocities(obs)
+    v_max, w_max = policy.velocity_bounds
+    assert ((0 <= v[:, 0]) & (v[:, 0] <= v_max)).all() and (np.abs(v[:, 1]) <= w_max).all()
+    # The action maps back to the command: v = (a0 + 1)/2 v_max, ω = a1 ω_max.
+    assert np.allclose((batch[:, 0] + 1) / 2 * v_max, v[:, 0], atol=1e-5)
+    assert np.allclose(batch[:, 1] * w_max, v[:, 1], atol=1e-5)
+
+
+def test_in_dvst_a_bigger_robot_is_driven_in_the_meta_robots_frame():
+    meta = dvnav.Policy.load(str(MODEL))
+    big = dvnav.Policy.load(str(MODEL), footprint=str(ROOT / "footprints/circle-0.5.toml"))
+    assert big.mu == pytest.approx(2.5) and meta.mu == 1.0
+    # The big robot's observation, scaled by 1/μ, is what the meta agent sees: with every
+    # length divided by μ the meta agent's command, with v scaled back by μ within bounds.
+    fp = str(ROOT / "footprints/circle-0.5.toml")
+    obs, _ = dvnav.NavVectorEnv(num_envs=32, room="env0", seed=2, footprint=fp).reset()
+    scaled = obs.copy()
+    scaled[:, :540] = np.clip(obs[:, :540] / big.mu, 0.02, 10.0)
+    scaled[:, 540] /= big.mu
+    scaled[:, 542] /= big.mu
+    meta_cmd = meta.velocities(scaled)
+    cmd = big.velocities(obs)
+    v_max, w_max = big.velocity_bounds
+    assert (cmd[:, 0] <= v_max + 1e-12).all() and (np.abs(cmd[:, 1]) <= w_max + 1e-12).all()
+    # Where μ·v of the meta command is within the big robot's bounds, DVST passes it as is.
+    free = (meta_cmd[:, 0] * big.mu <= v_max) & (np.abs(meta_cmd[:, 1]) <= w_max)
+    assert free.sum() >= 4, "some commands are within the bounds"
+    assert np.allclose(cmd[free, 0], meta_cmd[free, 0] * big.mu)
+    assert np.allclose(cmd[free, 1], meta_cmd[free, 1])
+
+
+def test_the_shipped_agent_reaches_goals_in_its_training_room():
+    policy = dvnav.Policy.load(str(MODEL))
+    envs = dvnav.NavVectorEnv(num_envs=20, room="env3", seed=100, **policy.env_config)
+    obs, _ = envs.reset()
+    done = np.zeros(20, dtype=bool)
+    success = np.zeros(20, dtype=bool)
+    for _ in range(400):
+        obs, _, te, tr, info = envs.step(policy(obs))
+        success |= ~done & (info["outcome"] == 1)
+        done |= te | tr
+        if done.all():
+            break
+    assert done.all() and success.mean() >= 0.9, f"{success.mean():.0%} of 20"
+
+
+@pytest.mark.parametrize(
+    "args, says",
+    [
+        (("/no/such/model",), "no such file"),
+        ((str(MODEL), None, 0.05), "a margin needs a footprint file"),
+        ((str(MODEL), "/no/such.toml"), "/no/such.toml"),
+    ],
+)
+def test_bad_loads_say_what_is_wrong(args, says):
+    with pytest.raises(ValueError) as e:
+        dvnav.Policy.load(*args)
+    assert says in str(e.value)
+
+
+def test_observations_of_the_wrong_length_are_refused():
+    policy = dvnav.Policy.load(str(MODEL))
+    with pytest.raises(ValueError, match="this policy takes 544"):
+        policy(np.zeros((2, 100), np.float32))
