@@ -1,7 +1,7 @@
 # dvnav — common tasks. `make test` is what CI runs (.ci/run).
 CARGO ?= cargo
 
-.PHONY: all build release test test-learning check-mcap check-deploy test-multihost test-ros2 lint fmt bench torch-venv train clean
+.PHONY: all build release test test-learning check-mcap check-deploy test-multihost test-ros2 python test-python bench-peers lint fmt bench torch-venv train clean
 
 all: build
 
@@ -96,6 +96,40 @@ test-ros2:
 	deploy/ros2/gen_proto.sh $(ROS2_PYENV)/bin/python; \
 	$(CARGO) build $(DVNAV_BIN); \
 	cd deploy/ros2 && DVNAV_BIN=$(CURDIR)/target/debug/dvnav ../../$(ROS2_PYENV)/bin/python -m pytest -q -p no:cacheprovider tests
+
+# The Python package (python/, PyO3 + maturin): `import dvnav`, gymnasium.make("dvnav/Nav-v0"),
+# dvnav.Policy. Builds it optimized into the venv .venv (python3 -m venv), with numpy and
+# gymnasium; use it with `.venv/bin/python` or `source .venv/bin/activate`.
+VENV := .venv
+python:
+	[ -x $(VENV)/bin/python ] || $(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/pip install --quiet --disable-pip-version-check -r python/requirements.txt
+	cd python && VIRTUAL_ENV=$(CURDIR)/$(VENV) PATH=$(CURDIR)/$(VENV)/bin:$$PATH maturin develop --release --quiet
+
+# The package's tests (python/tests: Gymnasium conformance, determinism, the vector env against
+# single envs, `dvnav eval`'s episodes replayed step for step, the policy, the README's examples)
+# in their own venv under target/, with pytest and Stable-Baselines3 (PyTorch, ~3 GB once). The
+# extension is built unoptimized, like `make test`'s crates, which it shares. Skips, exit 0,
+# without python3 and its venv module.
+PY_TEST_ENV := target/pyenv-python
+test-python:
+	@if ! command -v $(PYTHON) >/dev/null 2>&1 || ! $(PYTHON) -c 'import venv, ensurepip' >/dev/null 2>&1; then \
+		echo "test-python: SKIPPED: no $(PYTHON) with the venv module; the Python package was not tested"; \
+		exit 0; \
+	fi; \
+	set -e; \
+	[ -x $(PY_TEST_ENV)/bin/python ] || $(PYTHON) -m venv $(PY_TEST_ENV); \
+	$(PY_TEST_ENV)/bin/pip install --quiet --disable-pip-version-check -r python/requirements-test.txt; \
+	cd python && VIRTUAL_ENV=$(CURDIR)/$(PY_TEST_ENV) PATH=$(CURDIR)/$(PY_TEST_ENV)/bin:$$PATH maturin develop --quiet; cd ..; \
+	$(CARGO) build $(DVNAV_BIN); \
+	cd python && DVNAV_BIN=$(CURDIR)/target/debug/dvnav ../$(PY_TEST_ENV)/bin/python -m pytest -q -p no:cacheprovider tests
+
+# dvnav beside Stable-Baselines3 on this machine (scripts/bench_peers.py): env steps/s through
+# Python, and time to skill of `dvnav train` against SB3's SAC with the same network and
+# curriculum, 3 seeds each, alternated. ~1 h on 2 cores. Writes runs/peers/peers.json.
+bench-peers: release python
+	$(VENV)/bin/pip install --quiet --disable-pip-version-check -r python/requirements-test.txt
+	$(VENV)/bin/python scripts/bench_peers.py ./target/release/dvnav --out runs/peers $(PEERS_ARGS)
 
 # Crate layering and no import loops inside a crate (scripts/check_layers.py; Python 3.11+).
 lint:

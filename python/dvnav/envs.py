@@ -118,6 +118,11 @@ class NavEnv(gymnasium.Env):
         info = {} if outcome is None else {"outcome": outcome, "is_success": outcome == "success"}
         return obs, float(reward), terminated, truncated, info
 
+    def set_room(self, room: str) -> None:
+        """Runs the next episodes (from the next reset on) in ``room``: a curriculum's next
+        stage."""
+        self._core.set_room(str(room))
+
     def render(self):
         if self.render_mode == "rgb_array":
             return self._core.render(self.render_size)
@@ -206,6 +211,10 @@ class NavVectorEnv(VectorEnv):
         obs, rewards, terminated, truncated, outcome = self._core.step(a)
         self._fresh = False
         return obs, rewards, terminated, truncated, {"outcome": outcome}
+
+    def set_room(self, room: str) -> None:
+        """Runs every environment's next episodes in ``room``, from each one's next reset."""
+        self._core.set_room(str(room))
 
     def render(self):
         if self.render_mode == "rgb_array":

@@ -39,7 +39,11 @@ impl Env {
     /// Starts an episode: with `seed`, the first episode of a generator seeded so (the same
     /// for the same seed); without, the next episode of the current generator.
     #[pyo3(signature = (seed=None))]
-    fn reset<'py>(&mut self, py: Python<'py>, seed: Option<u64>) -> PyResult<Bound<'py, PyArray1<f32>>> {
+    fn reset<'py>(
+        &mut self,
+        py: Python<'py>,
+        seed: Option<u64>,
+    ) -> PyResult<Bound<'py, PyArray1<f32>>> {
         match seed {
             Some(s) => {
                 self.env = self.setup.env(0, s).map_err(value_error)?;
@@ -71,6 +75,18 @@ impl Env {
         self.fresh = false;
         self.env.reset_to(Pose2::new(start.0, start.1, start.2), [goal.0, goal.1]);
         self.obs(py)
+    }
+
+    /// Runs the next episodes in `room` (a built-in name or a room file), from the next reset
+    /// on: a curriculum's next stage.
+    fn set_room(&mut self, room: &str) -> PyResult<()> {
+        let rooms = dvnav_sim::Room::load(room).map_err(value_error)?;
+        if rooms.is_empty() {
+            return Err(value_error(anyhow::anyhow!("room `{room}`: the file holds no room")));
+        }
+        self.setup.rooms = rooms;
+        self.env.set_room(self.setup.room(0, self.episode + 1));
+        Ok(())
     }
 
     /// One control period with the normalized action `a` ∈ [−1, 1]²:

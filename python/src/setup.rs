@@ -98,8 +98,9 @@ fn env_config_from(config: Option<&str>, env_json: &str) -> anyhow::Result<EnvCo
         .map_err(|e| anyhow::anyhow!("env config is not JSON: {e}"))?;
     let mut merged = serde_json::to_value(&base)?;
     merge(&mut merged, overrides);
-    let env: EnvConfig = serde_json::from_value(merged)
-        .map_err(|e| anyhow::anyhow!("env config: {e} (the keys are those of a run config's [env] section)"))?;
+    let env: EnvConfig = serde_json::from_value(merged).map_err(|e| {
+        anyhow::anyhow!("env config: {e} (the keys are those of a run config's [env] section)")
+    })?;
     let cfg = Config { env, ..Config::default() };
     cfg.validate()?;
     Ok(cfg.env)

@@ -51,7 +51,9 @@ impl VecEnv {
         env_config: &str,
     ) -> PyResult<Self> {
         if seeds.is_empty() {
-            return Err(value_error(anyhow::anyhow!("a vector environment needs at least one seed")));
+            return Err(value_error(anyhow::anyhow!(
+                "a vector environment needs at least one seed"
+            )));
         }
         let setup = Setup::new(room, footprint, config, env_config).map_err(value_error)?;
         let slots = py.detach(|| build(&setup, &seeds)).map_err(value_error)?;
@@ -134,7 +136,11 @@ impl VecEnv {
                 .par_iter_mut()
                 .enumerate()
                 .zip(o.par_chunks_mut(dim))
-                .zip(r.par_iter_mut().zip(te.par_iter_mut()).zip(tr.par_iter_mut().zip(c.par_iter_mut())))
+                .zip(
+                    r.par_iter_mut()
+                        .zip(te.par_iter_mut())
+                        .zip(tr.par_iter_mut().zip(c.par_iter_mut())),
+                )
                 .for_each(|(((i, s), o), ((r, te), (tr, c)))| {
                     if s.ended {
                         next_episode(setup, i, s);
@@ -152,6 +158,20 @@ impl VecEnv {
                 });
         });
         Ok((obs, rewards, terminated, truncated, codes))
+    }
+
+    /// Runs every environment's next episodes in `room` (a built-in name or a room file),
+    /// from each one's next reset on.
+    fn set_room(&mut self, room: &str) -> PyResult<()> {
+        let rooms = dvnav_sim::Room::load(room).map_err(value_error)?;
+        if rooms.is_empty() {
+            return Err(value_error(anyhow::anyhow!("room `{room}`: the file holds no room")));
+        }
+        self.setup.rooms = rooms;
+        for (i, s) in self.slots.iter_mut().enumerate() {
+            s.env.set_room(self.setup.room(i, s.episode + 1));
+        }
+        Ok(())
     }
 
     /// Every environment's observation now, one row each.
@@ -183,7 +203,12 @@ impl VecEnv {
 
     /// A `size` x `size` RGB frame of environment `i`.
     #[pyo3(signature = (i, size=400))]
-    fn render<'py>(&self, py: Python<'py>, i: usize, size: u32) -> PyResult<Bound<'py, numpy::PyArray3<u8>>> {
+    fn render<'py>(
+        &self,
+        py: Python<'py>,
+        i: usize,
+        size: u32,
+    ) -> PyResult<Bound<'py, numpy::PyArray3<u8>>> {
         let s = self.slots.get(i).ok_or_else(|| {
             value_error(anyhow::anyhow!("no environment {i} of {}", self.slots.len()))
         })?;

@@ -86,6 +86,22 @@ def test_every_room_name_and_env_config_key_is_accepted():
     assert cfg["lidar"]["beams"] == 90 and cfg["lidar"]["fov_deg"] == 270.0 and cfg["v_max"] == 0.8
 
 
+def test_a_curriculum_moves_to_the_next_room_at_the_next_reset():
+    env = gymnasium.make("dvnav/Nav-v0", room="env0", seed=0)
+    env.reset()
+    env.unwrapped.set_room("env3")
+    env.step([0.0, 0.0])
+    assert env.unwrapped._core.room == "env0", "the episode under way keeps its room"
+    assert env.reset()[1]["room"] == "env3"
+    envs = dvnav.NavVectorEnv(num_envs=2, room="env0", seed=0)
+    envs.reset()
+    envs.set_room("env2")
+    envs.reset()
+    assert [envs.state(i)[0] for i in range(2)] == ["env2", "env2"]
+    with pytest.raises(ValueError, match="unknown room"):
+        envs.set_room("nowhere")
+
+
 def test_a_run_config_and_a_footprint_file(root):
     env = gymnasium.make("dvnav/Nav-v0", room="env0", seed=0, config=str(root / "configs/sac_ri.toml"))
     assert env.observation_space.shape == (545,), "the SAC_RI run appends the radius"
