@@ -35,10 +35,6 @@ def _spaces(core) -> tuple[spaces.Box, spaces.Box]:
     return obs, act
 
 
-def _fps(core) -> float:
-    return 1.0 / json.loads(core.env_config)["dt"] if hasattr(core, "env_config") else 5.0
-
-
 def _random_seed() -> int:
     return secrets.randbits(63)
 
@@ -82,7 +78,8 @@ class NavEnv(gymnasium.Env):
         self.observation_space, self.action_space = _spaces(self._core)
         self.render_mode = render_mode
         self.render_size = int(render_size)
-        self.metadata = {**self.metadata, "render_fps": _fps(self._core)}
+        # One frame per control period.
+        self.metadata = {**self.metadata, "render_fps": 1.0 / self.env_config["dt"]}
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Starts an episode. ``options={"start": (x, y, yaw), "goal": (x, y)}`` drives a

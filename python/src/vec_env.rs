@@ -36,6 +36,9 @@ type StepArrays<'py> = (
     Bound<'py, PyArray1<u8>>,
 );
 
+/// An environment's room, pose (x, y, yaw) and goal (x, y).
+type EnvState = (String, (f64, f64, f64), (f64, f64));
+
 #[pymethods]
 impl VecEnv {
     /// One environment per seed, each like `Env(room, seed, …)`; environment `i` starts in
@@ -193,7 +196,7 @@ impl VecEnv {
     }
 
     /// Environment `i`'s room, pose (x, y, yaw) and goal (x, y).
-    fn state(&self, i: usize) -> PyResult<(String, (f64, f64, f64), (f64, f64))> {
+    fn state(&self, i: usize) -> PyResult<EnvState> {
         let s = self.slots.get(i).ok_or_else(|| {
             value_error(anyhow::anyhow!("no environment {i} of {}", self.slots.len()))
         })?;

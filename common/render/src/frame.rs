@@ -5,7 +5,7 @@
 use crate::room::{OBSTACLE, draw_room, draw_shape};
 use crate::room_map::{ROBOT, outline};
 use crate::{Canvas, INK, Rgba, WHITE, WorldView};
-use dvnav_sim::NavEnv;
+use dvnav_sim::{NavEnv, RoomSpec};
 
 /// The goal marker and its tolerance disc.
 pub const GOAL: Rgba = Rgba::hex(0x2ca02c);
@@ -15,18 +15,23 @@ pub const RAY: Rgba = Rgba::hex(0xd62728);
 /// Rays drawn: every beam would be a solid fan at 540 beams.
 const RAYS: usize = 60;
 
-/// Draws `env` as it is now on a `size` x `size` canvas.
-pub fn render_frame(env: &NavEnv, size: u32) -> anyhow::Result<Canvas> {
-    let mut canvas = Canvas::new(size, size, WHITE)?;
-    let room = env.room();
-    let spec = room.spec();
-    let view = WorldView {
+/// The whole room, walls included, on a `size`-pixel square.
+pub fn frame_view(spec: &RoomSpec, size: u32) -> WorldView {
+    WorldView {
         left: 0.0,
         top: 0.0,
         size: size as f32,
         center: [0.0, 0.0],
         side: spec.side + 2.0 * spec.wall_thickness + 0.3,
-    };
+    }
+}
+
+/// Draws `env` as it is now on a `size` x `size` canvas.
+pub fn render_frame(env: &NavEnv, size: u32) -> anyhow::Result<Canvas> {
+    let mut canvas = Canvas::new(size, size, WHITE)?;
+    let room = env.room();
+    let spec = room.spec();
+    let view = frame_view(spec, size);
     draw_room(&mut canvas, &view, spec);
     // The room sorts its timed obstacles by the step they appear at; `timed_active` counts a
     // prefix of that order.
@@ -77,14 +82,7 @@ mod tests {
         let size = 200;
         let c = render_frame(&env, size).unwrap();
         assert_eq!(c.rgb().len(), (size * size * 3) as usize);
-        let spec = env.room().spec();
-        let view = WorldView {
-            left: 0.0,
-            top: 0.0,
-            size: size as f32,
-            center: [0.0, 0.0],
-            side: spec.side + 2.0 * spec.wall_thickness + 0.3,
-        };
+        let view = frame_view(env.room().spec(), size);
         let at = |p: [f64; 2]| {
             let (x, y) = view.px(p);
             c.pixel(x as u32, y as u32).unwrap()
