@@ -43,7 +43,8 @@ impl<P: NavPolicy> Dvst<P> {
         let trained = MetaRobot::trained(env)?;
         anyhow::ensure!(
             robot.meta == trained,
-            "the footprint file's meta robot ({:?}) is not the one the model was trained as ({trained:?})",
+            "the footprint file's meta robot differs from the one the model was trained as: the \
+             file's is {:?}, the model's {trained:?}",
             robot.meta
         );
         Self::new(meta, robot)?.with_scan_range(Some([env.lidar.range_min, env.lidar.range_max]))
@@ -179,7 +180,7 @@ mod tests {
         assert_eq!(dvst.mu(), 2.0);
         let other = EnvConfig { robot_radius: 0.3, ..EnvConfig::default() };
         let e = Dvst::for_run(rec(), &other, robot).unwrap_err().to_string();
-        assert!(e.contains("not the one the model was trained as"), "{e}");
+        assert!(e.contains("meta robot differs from the one the model was trained as"), "{e}");
     }
 
     #[test]
