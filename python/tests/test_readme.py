@@ -28,6 +28,16 @@ def test_the_loading_example_drives_the_shipped_agent_to_its_goal():
 def test_the_sb3_example_trains_and_saves(tmp_path):
     code = example("sb3")
     assert "total_timesteps=20_000" in code
-    out = run(code.replace("total_timesteps=20_000", "total_timesteps=300"), tmp_path)
+    run(code.replace("total_timesteps=20_000", "total_timesteps=300"), tmp_path)
     assert (tmp_path / "sac-dvnav.zip").is_file()
-    assert "total_timesteps" in out, "SB3 logged its progress"
+    # The saved agent loads and acts in the environment it was trained on.
+    out = run(
+        "import gymnasium, dvnav\n"
+        "from stable_baselines3 import SAC\n"
+        "model = SAC.load('sac-dvnav')\n"
+        "env = gymnasium.make('dvnav/Nav-v0', room='env0', seed=1)\n"
+        "action, _ = model.predict(env.reset()[0], deterministic=True)\n"
+        "print(action.shape, env.action_space.contains(action))\n",
+        tmp_path,
+    )
+    assert out.strip() == "(2,) True", out
