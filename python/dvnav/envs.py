@@ -39,6 +39,17 @@ def _random_seed() -> int:
     return secrets.randbits(63)
 
 
+def _core_kwargs(render_mode, footprint, config, env_config) -> dict[str, Any]:
+    """Checks the render mode and shapes the arguments both Rust classes take."""
+    if render_mode is not None and render_mode not in ("rgb_array",):
+        raise ValueError(f"render_mode {render_mode!r}: dvnav renders 'rgb_array' only")
+    return {
+        "footprint": None if footprint is None else str(footprint),
+        "config": None if config is None else str(config),
+        "env_config": json.dumps(env_config),
+    }
+
+
 class NavEnv(gymnasium.Env):
     """One dvnav environment: a room, a robot (the meta robot, or ``footprint``), a goal.
 
@@ -65,16 +76,9 @@ class NavEnv(gymnasium.Env):
         render_size: int = 400,
         **env_config: Any,
     ):
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode {render_mode!r}: dvnav renders 'rgb_array' only")
+        kwargs = _core_kwargs(render_mode, footprint, config, env_config)
         self._seed = _random_seed() if seed is None else int(seed)
-        self._core = _core.Env(
-            str(room),
-            self._seed,
-            footprint=None if footprint is None else str(footprint),
-            config=None if config is None else str(config),
-            env_config=json.dumps(env_config),
-        )
+        self._core = _core.Env(str(room), self._seed, **kwargs)
         self.observation_space, self.action_space = _spaces(self._core)
         self.render_mode = render_mode
         self.render_size = int(render_size)
@@ -168,17 +172,10 @@ class NavVectorEnv(VectorEnv):
     ):
         if num_envs < 1:
             raise ValueError(f"num_envs must be at least 1, got {num_envs}")
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode {render_mode!r}: dvnav renders 'rgb_array' only")
+        kwargs = _core_kwargs(render_mode, footprint, config, env_config)
         base = _random_seed() if seed is None else int(seed)
         self.num_envs = int(num_envs)
-        self._core = _core.VecEnv(
-            str(room),
-            [base + i for i in range(self.num_envs)],
-            footprint=None if footprint is None else str(footprint),
-            config=None if config is None else str(config),
-            env_config=json.dumps(env_config),
-        )
+        self._core = _core.VecEnv(str(room), [base + i for i in range(self.num_envs)], **kwargs)
         self.single_observation_space, self.single_action_space = _spaces(self._core)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)

@@ -80,11 +80,7 @@ impl Env {
     /// Runs the next episodes in `room` (a built-in name or a room file), from the next reset
     /// on: a curriculum's next stage.
     fn set_room(&mut self, room: &str) -> PyResult<()> {
-        let rooms = dvnav_sim::Room::load(room).map_err(value_error)?;
-        if rooms.is_empty() {
-            return Err(value_error(anyhow::anyhow!("room `{room}`: the file holds no room")));
-        }
-        self.setup.rooms = rooms;
+        self.setup.rooms = crate::setup::load_rooms(room).map_err(value_error)?;
         self.env.set_room(self.setup.room(0, self.episode + 1));
         Ok(())
     }

@@ -34,8 +34,7 @@ impl Setup {
         config: Option<&str>,
         env_config: &str,
     ) -> anyhow::Result<Setup> {
-        let rooms = Room::load(room)?;
-        anyhow::ensure!(!rooms.is_empty(), "room `{room}`: the file holds no room");
+        let rooms = load_rooms(room)?;
         let cfg = env_config_from(config, env_config)?;
         let footprint = match footprint {
             Some(path) => Some(Footprint::load(std::path::Path::new(path))?),
@@ -87,6 +86,13 @@ impl Setup {
         }
         (low, high)
     }
+}
+
+/// The rooms of `room` (a built-in name or a room file), at least one.
+pub fn load_rooms(room: &str) -> anyhow::Result<Vec<Arc<Room>>> {
+    let rooms = Room::load(room)?;
+    anyhow::ensure!(!rooms.is_empty(), "room `{room}`: the file holds no room");
+    Ok(rooms)
 }
 
 fn env_config_from(config: Option<&str>, env_json: &str) -> anyhow::Result<EnvConfig> {

@@ -166,11 +166,7 @@ impl VecEnv {
     /// Runs every environment's next episodes in `room` (a built-in name or a room file),
     /// from each one's next reset on.
     fn set_room(&mut self, room: &str) -> PyResult<()> {
-        let rooms = dvnav_sim::Room::load(room).map_err(value_error)?;
-        if rooms.is_empty() {
-            return Err(value_error(anyhow::anyhow!("room `{room}`: the file holds no room")));
-        }
-        self.setup.rooms = rooms;
+        self.setup.rooms = crate::setup::load_rooms(room).map_err(value_error)?;
         for (i, s) in self.slots.iter_mut().enumerate() {
             s.env.set_room(self.setup.room(i, s.episode + 1));
         }
