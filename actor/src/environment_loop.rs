@@ -5,6 +5,12 @@
 //!
 //! It knows nothing about the network: the actor process plugs in the gRPC adder and variable
 //! client; tests plug in in-process ones.
+//!
+//! **Rooms.** Each curriculum stage is a [`RoomSet`]; every episode draws its room from its
+//! stage's set with the loop's random stream (a stage of one room draws nothing, so seeded runs
+//! of single-room curricula are unchanged). Rooms are built on first use and kept, at most
+//! [`ROOM_CACHE_CAPACITY`] of them: building a generated room (its layout, then a grid search
+//! that checks its free space is connected) costs far more than an episode's first step.
 
 use crate::episode_logger::EpisodeSelector;
 use candle_core::{Device, Tensor};
@@ -13,12 +19,78 @@ use dvnav_link::core::{Adder, EpisodeStats, VariableSource};
 use dvnav_nav::control::{action_to_velocity, pid_velocity, velocity_to_action};
 use dvnav_nav::weights::PolicyHandle;
 use dvnav_sim::obs::{ACTION_DIM, GOAL_ANGLE, GOAL_DISTANCE};
+use dvnav_sim::room_set::RoomSet;
 use dvnav_sim::{Outcome, score};
 use dvnav_sim::{Room, VecEnv};
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, StandardNormal};
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
+
+/// Rooms an actor keeps built (names, each one room or a room file's rooms). A generated room
+/// is slow to build and holds its clearance grid (up to 400 x 400 cells) once episodes have
+/// sampled tasks in it, so with sets of thousands of rooms the cache keeps the recent ones.
+pub const ROOM_CACHE_CAPACITY: usize = 256;
+
+/// Draws a new room of a set this many times when a drawn room fails to build, before giving
+/// up: one bad seed of a generator should not end a long run.
+const ROOM_TRIES: usize = 8;
+
+/// Rooms built so far, by name; at most [`ROOM_CACHE_CAPACITY`], the oldest that no
+/// environment uses evicted first.
+#[derive(Default)]
+struct RoomCache {
+    rooms: HashMap<String, Vec<Arc<Room>>>,
+    /// Names, oldest first.
+    order: VecDeque<String>,
+}
+
+impl RoomCache {
+    /// The rooms of `name` (`Room::load`): one, or every room of a room file.
+    fn get(&mut self, name: &str) -> anyhow::Result<Vec<Arc<Room>>> {
+        if let Some(r) = self.rooms.get(name) {
+            return Ok(r.clone());
+        }
+        let rooms = Room::load(name)?;
+        anyhow::ensure!(!rooms.is_empty(), "`{name}` holds no room");
+        if self.rooms.len() >= ROOM_CACHE_CAPACITY {
+            // An environment holds its room (and its next) itself; an entry only the cache
+            // holds is free to go.
+            let unused = |rooms: &[Arc<Room>]| rooms.iter().all(|r| Arc::strong_count(r) == 1);
+            let at = self.order.iter().position(|n| unused(&self.rooms[n])).unwrap_or(0);
+            if let Some(old) = self.order.remove(at) {
+                self.rooms.remove(&old);
+            }
+        }
+        self.rooms.insert(name.to_string(), rooms.clone());
+        self.order.push_back(name.to_string());
+        Ok(rooms)
+    }
+
+    /// A room of `set`, drawn with `rng` ([`RoomSet::pick`], then one of a room file's rooms
+    /// when it holds several). A room of a set that fails to build is reported and another
+    /// drawn, up to [`ROOM_TRIES`] times.
+    fn pick(&mut self, set: &RoomSet, rng: &mut impl Rng) -> anyhow::Result<Arc<Room>> {
+        let tries = if set.is_single() { 1 } else { ROOM_TRIES };
+        let mut failure = None;
+        for _ in 0..tries {
+            let name = set.pick(rng);
+            match self.get(&name) {
+                Ok(rooms) if rooms.len() == 1 => return Ok(rooms[0].clone()),
+                Ok(rooms) => return Ok(rooms[rng.random_range(0..rooms.len())].clone()),
+                Err(e) => {
+                    if tries > 1 {
+                        let error = format!("{e:#}");
+                        tracing::warn!(room = %name, stage = %set, %error, "cannot build a room; drawing another");
+                    }
+                    failure = Some(e);
+                }
+            }
+        }
+        let e = failure.unwrap_or_else(|| anyhow::anyhow!("no room drawn"));
+        Err(e.context(format!("stage `{set}`: {tries} drawn rooms in a row failed to build")))
+    }
+}
 
 /// Who drives an episode.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -71,7 +143,9 @@ pub struct EnvironmentLoop<A: Adder, V: VariableSource> {
     adder: A,
     source: V,
     policy: PolicyHandle,
-    rooms: HashMap<String, Arc<Room>>,
+    /// The curriculum's stages (`curriculum.rooms`), parsed.
+    sets: Vec<RoomSet>,
+    rooms: RoomCache,
     stage: u32,
     episodes: Vec<EpisodeInfo>,
     next_episode_id: u64,
@@ -85,8 +159,8 @@ pub struct EnvironmentLoop<A: Adder, V: VariableSource> {
 }
 
 impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
-    /// A loop over `cfg.actor.envs` environments seeded from `seed`, in the first room of the
-    /// curriculum until the learner assigns another.
+    /// A loop over `cfg.actor.envs` environments seeded from `seed`, in rooms of the first
+    /// stage of the curriculum until the learner assigns another.
     pub fn new(
         cfg: Config,
         actor_name: String,
@@ -96,12 +170,23 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
         source: V,
         logger: Option<EpisodeSelector>,
     ) -> anyhow::Result<Self> {
-        let first_room = cfg.curriculum.rooms[0].clone();
-        let room = Room::builtin(&first_room)?;
+        let sets = cfg
+            .curriculum
+            .rooms
+            .iter()
+            .map(|s| RoomSet::parse(s))
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        anyhow::ensure!(!sets.is_empty(), "curriculum.rooms: needs at least one room");
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(seed ^ 0x000a_c70e);
+        let mut rooms = RoomCache::default();
         let n = cfg.actor.envs;
+        // Each environment's first episode: a room of stage 0 (one room: the same for all,
+        // and nothing drawn).
+        let first: Vec<Arc<Room>> =
+            (0..n).map(|_| rooms.pick(&sets[0], &mut rng)).collect::<anyhow::Result<_>>()?;
         let seeds: Vec<u64> =
             (0..n as u64).map(|i| seed.wrapping_mul(7919).wrapping_add(i)).collect();
-        let envs = VecEnv::new(vec![room.clone(); n], &cfg.env, &seeds);
+        let envs = VecEnv::new(first, &cfg.env, &seeds);
         let d = cfg.obs_dim();
         let mut this = Self {
             actor_name,
@@ -110,14 +195,15 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
             adder,
             source,
             policy: PolicyHandle::default(),
-            rooms: HashMap::from([(first_room, room)]),
+            sets,
+            rooms,
             stage: 0,
             episodes: Vec::with_capacity(n),
             next_episode_id: 0,
             obs: vec![0.0; n * d],
             next_obs: vec![0.0; n * d],
             actions: vec![[0.0; ACTION_DIM]; n],
-            rng: rand_pcg::Pcg64::seed_from_u64(seed ^ 0x000a_c70e),
+            rng,
             seed,
             logger,
             counters: LoopCounters { min_policy_version: u64::MAX, ..Default::default() },
@@ -170,13 +256,12 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
         Ok(())
     }
 
-    fn room(&mut self, name: &str) -> anyhow::Result<Arc<Room>> {
-        if let Some(r) = self.rooms.get(name) {
-            return Ok(r.clone());
-        }
-        let r = Room::builtin(name)?;
-        self.rooms.insert(name.to_string(), r.clone());
-        Ok(r)
+    /// A room for the next episode of `stage`, drawn from its set.
+    fn stage_room(&mut self, stage: u32) -> anyhow::Result<Arc<Room>> {
+        let set = self.sets.get(stage as usize).ok_or_else(|| {
+            anyhow::anyhow!("stage {stage}: the curriculum has {} stages", self.sets.len())
+        })?;
+        self.rooms.pick(set, &mut self.rng)
     }
 
     /// Starts a new episode in environment `i` (already reset or fresh) and logs its start.
@@ -233,11 +318,16 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
                 self.counters.weight_updates += 1;
             }
             if v.stage != self.stage {
-                let room = self.room(&v.room)?;
                 tracing::info!(actor = %self.actor_name, stage = v.stage, room = %v.room, "switching stage");
                 self.stage = v.stage;
-                for env in self.envs.envs_mut() {
-                    env.set_room(room.clone());
+                // A stage of one room is every environment's next room. A set draws each
+                // episode's room when the episode begins (below), so nothing is drawn here.
+                let set = RoomSet::parse(&v.room)?;
+                if set.is_single() {
+                    let room = self.rooms.pick(&set, &mut self.rng)?;
+                    for env in self.envs.envs_mut() {
+                        env.set_room(room.clone());
+                    }
                 }
             }
         }
@@ -329,8 +419,7 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
                 }
                 self.adder.add_episode(stats)?;
                 let stage = self.pick_stage();
-                let name = self.cfg.curriculum.rooms[stage as usize].clone();
-                let room = self.room(&name)?;
+                let room = self.stage_room(stage)?;
                 self.envs.envs_mut()[i].set_room(room);
                 self.envs.envs_mut()[i].reset();
                 self.episodes[i] = self.new_episode_in(i, warmup, stage)?;

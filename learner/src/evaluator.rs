@@ -4,6 +4,12 @@
 //! per room; one row per room goes to `eval.csv` in the run directory, and the route legs to
 //! MCAP (`mcap/eval/eval-NNNNN.mcap`).
 //!
+//! **Stages that are sets of rooms** (`dvnav_sim::room_set`) are evaluated in
+//! [`SET_EVAL_ROOMS`] of their rooms, the set's first ones ([`RoomSet::sample`]): the stage's
+//! `learner.eval_episodes` random episodes are spread over them, and a room that has the
+//! evaluation route also drives it. `eval.csv` gets a row per evaluated room, the rows of
+//! each stage together in stage order.
+//!
 //! **Never stalls the update loop.** The trainer hands over a snapshot of the policy weights
 //! (safetensors bytes, the same the actors get) through a channel that holds one; an
 //! evaluator thread builds its own [`MetaAgent`] from them and steps the environments on a
@@ -24,9 +30,11 @@ use dvnav_eval::{
 };
 use dvnav_nav::policy::MetaAgent;
 use dvnav_sim::Room;
+use dvnav_sim::room_set::RoomSet;
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::sync::mpsc::{self, SyncSender, TrySendError};
 use std::thread::JoinHandle;
 use std::time::Instant;
@@ -76,7 +84,7 @@ impl Evaluator {
         if cfg.learner.eval_every_updates == 0 {
             return Ok(None);
         }
-        let rooms = Room::builtins(&cfg.curriculum.rooms)?;
+        let rooms = stage_rooms(cfg)?;
         let (tx, rx) = mpsc::sync_channel::<Snapshot>(1);
         let cfg = cfg.clone();
         let out = out_dir.to_path_buf();
@@ -186,19 +194,63 @@ pub fn eval_seed(seed: u64) -> u64 {
     seed ^ 0x5eed_e7a1_0000_0000
 }
 
-/// Evaluates the policy of `snap` in `rooms` (the curriculum's): their routes and
-/// `learner.eval_episodes` random episodes each. Route legs go to `logger` with each room's
-/// curriculum stage. Returns one row per room and the wall time (s).
+/// Rooms evaluated for a curriculum stage that is a set of rooms: the set's first ones.
+pub const SET_EVAL_ROOMS: usize = 4;
+
+/// The rooms evaluated for each curriculum stage, built: a stage's room (every room of a room
+/// file), or [`SET_EVAL_ROOMS`] rooms of a set ([`RoomSet::sample`]).
+pub fn stage_rooms(cfg: &Config) -> anyhow::Result<Vec<Vec<Arc<Room>>>> {
+    cfg.curriculum
+        .rooms
+        .iter()
+        .enumerate()
+        .map(|(i, stage)| {
+            let set = RoomSet::parse(stage)?;
+            let mut rooms = Vec::new();
+            for name in set.sample(SET_EVAL_ROOMS) {
+                let loaded = Room::load(&name)
+                    .map_err(|e| anyhow::anyhow!("curriculum.rooms[{i}]: room `{name}`: {e:#}"))?;
+                rooms.extend(loaded);
+            }
+            Ok(rooms)
+        })
+        .collect()
+}
+
+/// The evaluation tasks of one stage's `rooms`: each room's route (where it has one), and
+/// `episodes` random episodes spread over the rooms (all of them in a stage of one room).
+fn stage_tasks(rooms: &[Arc<Room>], episodes: usize, seed: u64) -> Vec<dvnav_eval::Task> {
+    let k = rooms.len();
+    rooms
+        .iter()
+        .enumerate()
+        .flat_map(|(r, room)| {
+            let share = episodes / k + usize::from(r < episodes % k);
+            training_tasks(std::slice::from_ref(room), TRAINING_ROUTE, share, seed)
+        })
+        .collect()
+}
+
+/// Evaluates the policy of `snap` in `stages` (the rooms of each curriculum stage,
+/// [`stage_rooms`]): their routes and `learner.eval_episodes` random episodes per stage,
+/// spread over its rooms. Route legs go to `logger` with each room's curriculum stage (its first).
+/// Returns one row per room, stage by stage, and the wall time (s).
 pub fn evaluate(
     cfg: &Config,
-    rooms: &[std::sync::Arc<Room>],
+    stages: &[Vec<Arc<Room>>],
     snap: &Snapshot,
     mut logger: Option<&mut EvalLogger>,
 ) -> anyhow::Result<(Vec<RoomSummary>, f64)> {
     let started = Instant::now();
     let mut agent = MetaAgent::from_safetensors(&snap.policy, cfg)?;
-    let tasks =
-        training_tasks(rooms, TRAINING_ROUTE, cfg.learner.eval_episodes, eval_seed(cfg.run.seed));
+    let seed = eval_seed(cfg.run.seed);
+    let mut tasks = Vec::new();
+    let mut blocks = Vec::with_capacity(stages.len());
+    for rooms in stages {
+        let start = tasks.len();
+        tasks.extend(stage_tasks(rooms, cfg.learner.eval_episodes, seed));
+        blocks.push(start..tasks.len());
+    }
     if let Some(l) = logger.as_deref_mut() {
         l.policy_version = snap.policy_version;
     }
@@ -208,12 +260,15 @@ pub fn evaluate(
         &task.kind,
     ) {
         (Some(l), TaskKind::Route(_)) => {
-            let stage = rooms.iter().position(|r| r.name() == task.room.name()).unwrap_or(0);
+            let name = task.room.name();
+            let stage = stages.iter().position(|s| s.iter().any(|r| r.name() == name)).unwrap_or(0);
             l.log(task, stage as u32, &done)
         }
         _ => Ok(()),
     })?;
-    Ok((room_summaries(&tasks, &results), started.elapsed().as_secs_f64()))
+    // Summarized stage by stage: a room in two stages gets a row in each.
+    let rows = blocks.into_iter().flat_map(|b| room_summaries(&tasks[b.clone()], &results[b]));
+    Ok((rows.collect(), started.elapsed().as_secs_f64()))
 }
 
 /// One row of `eval.csv`: a room's results at one evaluation. Route fields are empty (or NaN)
@@ -418,6 +473,8 @@ mod tests {
             mean_score: 0.0,
             mean_time_s: None,
             mean_path_length_m: None,
+            reversal_rate: f64::NAN,
+            mean_abs_domega: f64::NAN,
         };
         let room = |name: &str| RoomSummary {
             room: name.into(),
@@ -451,16 +508,73 @@ mod tests {
         cfg.learner.eval_every_updates = 0;
         assert!(Evaluator::start(&cfg, Path::new("/nonexistent")).unwrap().is_none());
         let cfg = tiny_config();
-        let rooms = vec![Room::builtin("env0").unwrap()];
+        let rooms = vec![vec![Room::builtin("env0").unwrap()]];
         let snap =
             Snapshot { updates: 1, env_steps: 1, policy_version: 0, policy: b"junk".to_vec() };
         assert!(evaluate(&cfg, &rooms, &snap, None).is_err());
     }
 
     #[test]
+    fn a_set_stage_is_evaluated_in_its_first_rooms_with_the_episodes_spread_over_them() {
+        let mut cfg = tiny_config();
+        cfg.learner.eval_episodes = 6;
+        cfg.curriculum.rooms = vec!["env0|generated:clutter:0..100:size=5".into(), "env3".into()];
+        let stages = stage_rooms(&cfg).unwrap();
+        let names = |s: &[Arc<Room>]| s.iter().map(|r| r.name().to_string()).collect::<Vec<_>>();
+        assert_eq!(
+            names(&stages[0]),
+            [
+                "env0",
+                "generated:clutter:0:size=5",
+                "generated:clutter:1:size=5",
+                "generated:clutter:2:size=5"
+            ]
+        );
+        assert_eq!(names(&stages[1]), ["env3"]);
+        let snap =
+            Snapshot { updates: 1, env_steps: 1, policy_version: 0, policy: fresh_policy(&cfg) };
+        let (rows, wall) = evaluate(&cfg, &stages, &snap, None).unwrap();
+        // One row per evaluated room, stage 0's first; its 6 episodes spread 2, 2, 1, 1; the
+        // route where the room has one (env0, env3; generated rooms have none).
+        let got: Vec<(&str, usize, bool)> =
+            rows.iter().map(|r| (r.room.as_str(), r.rates.episodes, r.route.is_some())).collect();
+        assert_eq!(
+            got,
+            [
+                ("env0", 2, true),
+                ("generated:clutter:0:size=5", 2, false),
+                ("generated:clutter:1:size=5", 1, false),
+                ("generated:clutter:2:size=5", 1, false),
+                ("env3", 6, true),
+            ]
+        );
+        // The single-room stage is evaluated as before: alone, it gives the same episodes
+        // (to rounding: the policy's batch holds other episodes then).
+        let outcomes = |r: &RoomSummary| {
+            let route = r.route.as_ref().map(|x| (x.goals_reached, x.legs.clone()));
+            let rates = &r.rates;
+            (r.room.clone(), rates.episodes, rates.success_rate, rates.collision_rate, route)
+        };
+        let (alone, _) = evaluate(&cfg, &stages[1..], &snap, None).unwrap();
+        assert_eq!(alone.iter().map(outcomes).collect::<Vec<_>>(), [outcomes(&rows[4])]);
+        // eval.csv keeps its columns.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("eval.csv");
+        append_csv(&path, &snap, &rows, wall).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert_eq!(text.lines().next(), Some(EVAL_CSV_HEADER));
+        assert_eq!(EvalRow::read(&path).unwrap().len(), 5);
+        // A room in two stages gets a row in each.
+        cfg.curriculum.rooms = vec!["env3".into(), "env3".into()];
+        let (rows, _) = evaluate(&cfg, &stage_rooms(&cfg).unwrap(), &snap, None).unwrap();
+        assert_eq!(rows.len(), 2);
+        assert_eq!(outcomes(&rows[0]), outcomes(&rows[1]));
+    }
+
+    #[test]
     fn the_same_policy_scores_the_same_every_time() {
         let cfg = tiny_config();
-        let rooms = vec![Room::builtin("env1").unwrap()];
+        let rooms = vec![vec![Room::builtin("env1").unwrap()]];
         let snap =
             Snapshot { updates: 1, env_steps: 1, policy_version: 0, policy: fresh_policy(&cfg) };
         let (a, _) = evaluate(&cfg, &rooms, &snap, None).unwrap();

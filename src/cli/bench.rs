@@ -13,12 +13,16 @@ pub struct BenchArgs {
 
 #[derive(Subcommand, Debug)]
 enum BenchWhat {
-    /// Environment steps/s in env0 (kinematics, collision check, full scan, reward): one
-    /// environment on one thread, and a VecEnv on all threads.
+    /// Environment steps/s in a room, env0 by default (kinematics, collision check, full scan,
+    /// reward): one environment on one thread, and a VecEnv on all threads.
     Env {
         /// Steps timed per measurement.
         #[arg(long, default_value_t = 20_000)]
         steps: usize,
+        /// The room: a built-in name, a room file or an occupancy-grid map (the first room of a
+        /// file with several), as `dvnav eval --room` takes.
+        #[arg(long, default_value = "env0")]
+        room: String,
         /// Print one JSON object.
         #[arg(long)]
         json: bool,
@@ -143,13 +147,14 @@ fn torch_figure(batch: usize, threads: usize, updates: usize) -> Result<TorchFig
 
 pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
     match args.what {
-        BenchWhat::Env { steps, json } => {
-            let r = bench_env(steps)?;
+        BenchWhat::Env { steps, room, json } => {
+            let r = bench_env(steps, &room)?;
             if json {
                 println!("{r}");
             } else {
                 println!(
-                    "env steps/s: {:.0} on 1 thread, {:.0} on {} threads ({} envs)",
+                    "env steps/s in {}: {:.0} on 1 thread, {:.0} on {} threads ({} envs)",
+                    r["room"].as_str().unwrap_or("?"),
                     r["env_steps_per_s_1thread"].as_f64().unwrap_or(0.0),
                     r["env_steps_per_s_all_threads"].as_f64().unwrap_or(0.0),
                     r["threads"],
@@ -260,13 +265,14 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-fn bench_env(steps: usize) -> anyhow::Result<serde_json::Value> {
+fn bench_env(steps: usize, room: &str) -> anyhow::Result<serde_json::Value> {
     use dvnav_config::Config;
     use dvnav_sim::{NavEnv, Room};
     use rayon::prelude::*;
     use std::time::Instant;
     let cfg = Config::default();
-    let room = Room::builtin("env0")?;
+    let room =
+        Room::load(room)?.into_iter().next().ok_or_else(|| anyhow::anyhow!("no room to step"))?;
     // A gently turning drive: long enough episodes, some collisions, like an early policy.
     let command = |k: usize| (0.4, if (k / 20).is_multiple_of(2) { 0.6 } else { -0.6 });
 
@@ -311,7 +317,7 @@ fn bench_env(steps: usize) -> anyhow::Result<serde_json::Value> {
         "single_env_steps_per_s": single,
         "threads": threads,
         "envs": n,
-        "room": "env0",
+        "room": room.name(),
         "beams": cfg.env.lidar.beams,
     }))
 }

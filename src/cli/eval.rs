@@ -8,7 +8,7 @@ use dvnav_config::Config;
 use dvnav_eval::episode_log::LogMetadata;
 use dvnav_eval::{
     EvalLogger, GateGeometry, RunOptions, TRAINING_ROUTE, Task, parse_radii, robot_results,
-    robot_tasks, room_summaries, run_tasks, training_tasks,
+    robot_tasks, room_summaries, room_tasks, run_tasks, training_tasks,
 };
 use dvnav_nav::dvst::{Dvst, MetaRobot, VariedRobot};
 use dvnav_nav::policy::{MetaAgent, NavPolicy};
@@ -31,7 +31,20 @@ pub struct EvalArgs {
     /// radius; dynamic: obstacles appear on the route, one robot per radius.
     #[arg(long, value_enum, default_value_t = Scenario::Training)]
     pub scenario: Scenario,
-    /// Random episodes per room (training scenario), seeded by --seed.
+    /// Evaluate in these rooms instead of a scenario's: random episodes (--episodes) in each,
+    /// for every robot of --radii or --footprint (through DVST by default), or the checkpoint's
+    /// own robot. A built-in room name, a generated room (`generated:corridors:9001`), a room
+    /// file (`.toml`) or an occupancy-grid map (`.yaml`, `.png`, `.pgm`); repeatable.
+    #[arg(long, value_name = "NAME|FILE|MAP")]
+    pub room: Vec<String>,
+    /// With `--scenario generated`: the generator kind (clutter, corridors, rooms, paper).
+    #[arg(long, value_name = "KIND")]
+    pub kind: Option<String>,
+    /// With `--scenario generated`: generator seeds A:B (A included, B excluded), one room
+    /// each.
+    #[arg(long, value_name = "A:B")]
+    pub seeds: Option<String>,
+    /// Random episodes per room (training scenario and --room), seeded by --seed.
     #[arg(long, default_value_t = 100)]
     pub episodes: usize,
     /// Robot radii START:STOP:STEP in metres, both ends included (gate: default
@@ -67,6 +80,34 @@ pub struct EvalArgs {
     /// Draw every trajectory over its room (one panel per room) into this PNG.
     #[arg(long, value_name = "PNG")]
     pub out: Option<PathBuf>,
+    /// LiDAR range noise σ (m) for this evaluation (default: none, whatever the checkpoint
+    /// trained with; `[env.robustness]` of the checkpoint's config is never used here).
+    #[arg(long, value_name = "SIGMA", default_value_t = 0.0)]
+    pub noise_std: f64,
+    /// Share of LiDAR beams that drop out of every scan (read range_max or 0).
+    #[arg(long, value_name = "P", default_value_t = 0.0)]
+    pub dropout: f64,
+    /// Cycles of observation latency: the policy sees the observation of K cycles ago.
+    #[arg(long, value_name = "K", default_value_t = 0)]
+    pub latency: u32,
+    /// Gaussian actuation noise σ on the executed command: `V,W` (m/s, rad/s).
+    #[arg(long, value_name = "V,W", value_parser = parse_pair)]
+    pub actuation_noise: Option<[f64; 2]>,
+    /// Control-period jitter: each step lasts dt·(1 + u), u uniform in [−J, J].
+    #[arg(long, value_name = "J", default_value_t = 0.0)]
+    pub dt_jitter: f64,
+    /// Random tasks at least this far apart (m; default: the checkpoint's
+    /// env.min_start_goal_distance).
+    #[arg(long, value_name = "M")]
+    pub min_distance: Option<f64>,
+    /// Random tasks at most this far apart (m; default: no bound). Local tasks in buildings:
+    /// `--min-distance 2 --max-distance 5 --max-path-ratio 1.5`.
+    #[arg(long, value_name = "M")]
+    pub max_distance: Option<f64>,
+    /// Random tasks whose shortest path for the robot is at most this many times the
+    /// straight line (default: no bound).
+    #[arg(long, value_name = "R")]
+    pub max_path_ratio: Option<f64>,
     /// Episodes stepped at once; the policy sees them as one batch.
     #[arg(long, default_value_t = 64)]
     pub batch: usize,
@@ -81,6 +122,8 @@ pub enum Scenario {
     Gate,
     /// The dynamic room, one circular robot per radius.
     Dynamic,
+    /// Generated rooms (--kind, --seeds): random episodes per room and robot, as --room.
+    Generated,
 }
 
 impl Scenario {
@@ -89,6 +132,7 @@ impl Scenario {
             Scenario::Training => "training",
             Scenario::Gate => "gate",
             Scenario::Dynamic => "dynamic",
+            Scenario::Generated => "generated",
         }
     }
 }
@@ -133,6 +177,60 @@ impl Transfer {
             (Some(t), false) => Ok(t),
         }
     }
+}
+
+fn parse_pair(s: &str) -> Result<[f64; 2], String> {
+    let (a, b) = s.split_once(',').ok_or_else(|| format!("`{s}`: expected V,W"))?;
+    let num = |x: &str| x.trim().parse::<f64>().map_err(|_| format!("`{x}` is not a number"));
+    Ok([num(a)?, num(b)?])
+}
+
+/// The simulator's constants for this evaluation: the checkpoint's, with the robustness
+/// perturbations of the command line (none by default) instead of any of its training.
+fn eval_env(args: &EvalArgs, cfg: &Config) -> anyhow::Result<dvnav_config::EnvConfig> {
+    let mut env = cfg.env.clone();
+    env.lidar.noise_std = args.noise_std;
+    if let Some(d) = args.min_distance {
+        env.min_start_goal_distance = d;
+    }
+    if let Some(d) = args.max_distance {
+        env.max_start_goal_distance = d;
+    }
+    if let Some(r) = args.max_path_ratio {
+        env.max_path_ratio = r;
+    }
+    anyhow::ensure!(
+        env.min_start_goal_distance >= 0.0
+            && (env.max_start_goal_distance == 0.0
+                || env.max_start_goal_distance >= env.min_start_goal_distance),
+        "--max-distance ({}) must not be below --min-distance ({})",
+        env.max_start_goal_distance,
+        env.min_start_goal_distance
+    );
+    anyhow::ensure!(
+        env.max_path_ratio == 0.0 || env.max_path_ratio >= 1.0,
+        "--max-path-ratio must be at least 1 (a path is never shorter than the straight line)"
+    );
+    env.robustness = dvnav_sim::RobustnessConfig {
+        beam_dropout: args.dropout,
+        latency_steps: args.latency,
+        actuation_noise_std: args.actuation_noise.unwrap_or([0.0, 0.0]),
+        dt_jitter: args.dt_jitter,
+        randomize: None,
+    };
+    anyhow::ensure!(
+        args.noise_std.is_finite() && args.noise_std >= 0.0,
+        "--noise-std must be a σ of at least 0 m, not {}",
+        args.noise_std
+    );
+    let flag = |k: &str| match k {
+        "beam_dropout" => "--dropout",
+        "latency_steps" => "--latency",
+        "actuation_noise_std" => "--actuation-noise",
+        _ => "--dt-jitter",
+    };
+    env.robustness.check().map_err(|(k, r)| anyhow::anyhow!("{}: {r}", flag(&k)))?;
+    Ok(env)
 }
 
 /// Parsed `--radii`.
@@ -198,9 +296,38 @@ fn load_robots(files: &[PathBuf]) -> anyhow::Result<Vec<VariedRobot>> {
 
 /// The scenario's tasks, and the room each group of results is drawn in.
 fn tasks(args: &EvalArgs, cfg: &Config) -> anyhow::Result<Vec<Task>> {
+    if let Some(rooms) = room_list(args)? {
+        let mut loaded = Vec::new();
+        for name in &rooms {
+            loaded.extend(Room::load(name)?);
+        }
+        let robots: Vec<Option<(Footprint, f64)>> = if !args.footprint.is_empty() {
+            load_robots(&args.footprint)?
+                .into_iter()
+                .map(|r| {
+                    let radius = r.footprint.bounding_radius();
+                    Some((r.footprint, radius))
+                })
+                .collect()
+        } else if let Some(r) = &args.radii {
+            r.0.iter().map(|&r| Some((Footprint::circle(r), r))).collect()
+        } else {
+            vec![None]
+        };
+        return Ok(room_tasks(&loaded, &robots, args.episodes, args.seed));
+    }
     Ok(match args.scenario {
+        Scenario::Generated => unreachable!("room_list names the generated rooms"),
         Scenario::Training => {
-            let rooms = Room::builtins(&cfg.curriculum.rooms)?;
+            // Each curriculum stage: its room, or four representatives of a room set.
+            let mut rooms = Vec::new();
+            for stage in &cfg.curriculum.rooms {
+                let set = dvnav_sim::room_set::RoomSet::parse(stage)?;
+                let names = if set.is_single() { vec![stage.clone()] } else { set.sample(4) };
+                for name in names {
+                    rooms.extend(Room::load(&name)?);
+                }
+            }
             training_tasks(&rooms, TRAINING_ROUTE, args.episodes, args.seed)
         }
         Scenario::Gate | Scenario::Dynamic => {
@@ -238,6 +365,42 @@ fn tasks(args: &EvalArgs, cfg: &Config) -> anyhow::Result<Vec<Task>> {
     })
 }
 
+/// The rooms of `--room`, or of `--scenario generated --kind K --seeds A:B`; `None` for the
+/// other scenarios.
+fn room_list(args: &EvalArgs) -> anyhow::Result<Option<Vec<String>>> {
+    if args.scenario == Scenario::Generated {
+        anyhow::ensure!(args.room.is_empty(), "--room and --scenario generated exclude each other");
+        let kind = args.kind.as_deref().ok_or_else(|| {
+            anyhow::anyhow!(
+                "--scenario generated needs --kind (one of {})",
+                dvnav_sim::generate::KINDS.join(", ")
+            )
+        })?;
+        let seeds = args.seeds.as_deref().unwrap_or("9000:9010");
+        let (a, b) = seeds
+            .split_once(':')
+            .and_then(|(a, b)| Some((a.parse::<u64>().ok()?, b.parse::<u64>().ok()?)))
+            .filter(|(a, b)| a < b)
+            .ok_or_else(|| {
+                anyhow::anyhow!("--seeds `{seeds}`: expected A:B with A < B, e.g. 9000:9010")
+            })?;
+        return Ok(Some((a..b).map(|s| format!("generated:{kind}:{s}")).collect()));
+    }
+    anyhow::ensure!(
+        args.kind.is_none() && args.seeds.is_none(),
+        "--kind and --seeds are for --scenario generated"
+    );
+    if args.room.is_empty() {
+        return Ok(None);
+    }
+    anyhow::ensure!(
+        args.scenario == Scenario::Training,
+        "--room replaces the scenario's rooms; leave out --scenario {}",
+        args.scenario.name()
+    );
+    Ok(Some(args.room.clone()))
+}
+
 /// Runs `dvnav eval`.
 pub fn run(args: EvalArgs) -> anyhow::Result<ExitCode> {
     anyhow::ensure!(args.batch > 0, "--batch must be at least 1");
@@ -246,13 +409,14 @@ pub fn run(args: EvalArgs) -> anyhow::Result<ExitCode> {
         "--margin must be a length of at least 0 m, not {:?}",
         args.margin
     );
+    let in_rooms = room_list(&args)?.is_some();
     anyhow::ensure!(
-        args.footprint.is_empty() || args.scenario != Scenario::Training,
-        "--footprint is for the gate and dynamic scenarios"
+        args.footprint.is_empty() || args.scenario != Scenario::Training || in_rooms,
+        "--footprint is for the gate and dynamic scenarios and for --room"
     );
     let robots = load_robots(&args.footprint)?;
-    if args.scenario == Scenario::Training && args.radii.is_some() {
-        anyhow::bail!("--radii is for the gate and dynamic scenarios");
+    if args.scenario == Scenario::Training && args.radii.is_some() && !in_rooms {
+        anyhow::bail!("--radii is for the gate and dynamic scenarios and for --room");
     }
     let started = Instant::now();
     let (weights, cfg) = load_checkpoint(&args.checkpoint)?;
@@ -262,8 +426,33 @@ pub fn run(args: EvalArgs) -> anyhow::Result<ExitCode> {
     let mut owned: Vec<Box<dyn NavPolicy>> = Vec::new();
     let mut mus = Vec::new();
     match args.scenario {
+        _ if in_rooms => {
+            // One policy per robot (tasks[..].policy indexes them), in robot order.
+            let mut seen = Vec::new();
+            for t in &tasks {
+                if seen.contains(&t.policy) {
+                    continue;
+                }
+                seen.push(t.policy);
+                if t.radius.is_none() {
+                    owned.push(Box::new(MetaAgent::from_safetensors(&weights, &cfg)?));
+                    mus.push(1.0);
+                    continue;
+                }
+                let (p, mu) = robot_policy(
+                    &weights,
+                    &cfg,
+                    robots.get(t.policy),
+                    t.radius.unwrap_or(cfg.env.robot_radius),
+                    transfer,
+                    args.margin,
+                )?;
+                owned.push(p);
+                mus.push(mu);
+            }
+        }
         Scenario::Training => owned.push(Box::new(MetaAgent::from_safetensors(&weights, &cfg)?)),
-        Scenario::Gate | Scenario::Dynamic => {
+        Scenario::Gate | Scenario::Dynamic | Scenario::Generated => {
             for t in &tasks {
                 let robot = robots.get(t.policy);
                 let (p, mu) = robot_policy(
@@ -305,7 +494,8 @@ pub fn run(args: EvalArgs) -> anyhow::Result<ExitCode> {
         args.checkpoint.display()
     );
     let opts = RunOptions { window: args.batch, samples: logger.is_some() };
-    let results = run_tasks(&tasks, &cfg.env, &mut policies, opts, &mut |task, done| {
+    let env_cfg = eval_env(&args, &cfg)?;
+    let results = run_tasks(&tasks, &env_cfg, &mut policies, opts, &mut |task, done| {
         if let Some(l) = logger.as_mut() {
             l.log(task, groups[done.job] as u32, &done)?;
         }
@@ -336,7 +526,9 @@ pub fn run(args: EvalArgs) -> anyhow::Result<ExitCode> {
                 transfer.name(),
             ))
         }
-        Scenario::Training | Scenario::Dynamic => Rows::Rooms(room_summaries(&tasks, &results)),
+        Scenario::Training | Scenario::Dynamic | Scenario::Generated => {
+            Rows::Rooms(room_summaries(&tasks, &results))
+        }
     };
     if args.json {
         println!("{}", serde_json::to_string_pretty(&rows)?);

@@ -258,11 +258,22 @@ mod tests {
             path_length_m: 5.1,
             score: 0.7,
             route: GateRoute::Left,
+            reversal_rate: 0.0,
+            mean_abs_domega: 0.25,
         };
         let rows = Rows::Robots(gate_rows(vec![robot], &[1.75], "dvst"));
         let v = serde_json::to_value(&rows).unwrap();
         let o = &v[0];
-        for k in ["radius", "outcome", "path_length_m", "time_s", "route", "mu"] {
+        for k in [
+            "radius",
+            "outcome",
+            "path_length_m",
+            "time_s",
+            "route",
+            "mu",
+            "reversal_rate",
+            "mean_abs_domega",
+        ] {
             assert!(o.get(k).is_some(), "{k} in {o}");
         }
         assert_eq!((o["outcome"].as_str(), o["route"].as_str()), (Some("success"), Some("left")));
@@ -280,6 +291,8 @@ mod tests {
             mean_score: -1.0,
             mean_time_s: None,
             mean_path_length_m: None,
+            reversal_rate: 0.02,
+            mean_abs_domega: 0.3,
         };
         let rows = Rows::Rooms(vec![RoomSummary {
             room: "env2".into(),

@@ -332,3 +332,78 @@ fn a_step_that_waits_for_the_learner_acts_with_the_weights_published_meanwhile()
     assert_eq!(versions[..6], [3; 6], "steps 1 and 2");
     assert_eq!(versions[6..], [4; 9], "step 3 waited, then acted with version 4");
 }
+
+/// The loop of `run_at` over `rooms`, at `stage`, with PID episodes (no weights needed).
+fn run_rooms(rooms: &[&str], stage: u32, steps: usize, seed: u64) -> TransitionBatch {
+    let mut cfg = Config::default();
+    cfg.actor.envs = 3;
+    cfg.env.max_steps = 25;
+    cfg.curriculum.rooms = rooms.iter().map(|r| r.to_string()).collect();
+    let vars = Variables {
+        version: 1,
+        policy: Arc::new(policy_bytes(&cfg)),
+        stage,
+        room: cfg.curriculum.rooms[stage as usize].clone(),
+        warmup: true,
+        stop: false,
+    };
+    let mut el = EnvironmentLoop::new(
+        cfg,
+        "t".into(),
+        0,
+        seed,
+        VecAdder::default(),
+        Fixed(Arc::new(vars)),
+        None,
+    )
+    .unwrap();
+    let mut n = 0;
+    el.run(|_| {
+        n += 1;
+        n <= steps
+    })
+    .unwrap();
+    el.finish().unwrap().0.batch
+}
+
+#[test]
+fn a_set_stage_runs_its_episodes_in_many_rooms_of_the_set_and_a_single_stage_in_its_room() {
+    let set = "generated:clutter:0..5:size=5|env0";
+    let allowed: std::collections::BTreeSet<String> = (0..5)
+        .map(|s| format!("generated:clutter:{s}:size=5"))
+        .chain(["env0".to_string()])
+        .collect();
+    let b = run_rooms(&[set, "env1"], 0, 300, 4);
+    assert!(b.episodes.len() >= 20, "{}", b.episodes.len());
+    assert!(b.episodes.iter().all(|e| e.stage == 0 && allowed.contains(&e.room)));
+    let seen: std::collections::BTreeSet<&str> =
+        b.episodes.iter().map(|e| e.room.as_str()).collect();
+    assert!(seen.len() >= 4, "rooms drawn: {seen:?}");
+    assert!(seen.contains("env0"), "{seen:?}");
+    // The same seed draws the same rooms.
+    let again = run_rooms(&[set, "env1"], 0, 300, 4);
+    let rooms = |b: &TransitionBatch| b.episodes.iter().map(|e| e.room.clone()).collect::<Vec<_>>();
+    assert_eq!(rooms(&b), rooms(&again));
+    // Assigned stage 1 (one room): every episode after each environment's first (begun in
+    // stage 0's set, before the loop heard of stage 1) runs in `env1`.
+    let b = run_rooms(&[set, "env1"], 1, 200, 4);
+    let mut firsts = std::collections::HashSet::new();
+    let later: Vec<_> = b.episodes.iter().filter(|e| !firsts.insert(e.env_index)).collect();
+    assert!(later.len() >= 10, "{}", later.len());
+    assert!(later.iter().all(|e| e.stage == 1 && e.room == "env1"));
+}
+
+#[test]
+fn the_room_cache_keeps_at_most_its_capacity_and_never_drops_a_room_in_use() {
+    let mut cache = RoomCache::default();
+    let in_use = cache.get("env0").unwrap();
+    for seed in 0..ROOM_CACHE_CAPACITY as u64 + 3 {
+        // Cheap rooms: a few obstacles in a small square.
+        cache.get(&format!("generated:clutter:{seed}:size=3,density=0.02")).unwrap();
+        assert!(cache.rooms.len() <= ROOM_CACHE_CAPACITY);
+    }
+    assert_eq!(cache.rooms.len(), ROOM_CACHE_CAPACITY);
+    assert_eq!(cache.order.len(), ROOM_CACHE_CAPACITY);
+    assert!(Arc::ptr_eq(&cache.get("env0").unwrap()[0], &in_use[0]), "env0 was kept");
+    assert!(!cache.rooms.contains_key("generated:clutter:0:density=0.02,size=3"), "oldest out");
+}

@@ -10,6 +10,7 @@
 #![warn(missing_docs)]
 
 use dvnav_sim::obs::ObsLayout;
+use dvnav_sim::room_set::{Alternative, RoomSet};
 pub use dvnav_sim::{EnvConfig, LidarConfig, RewardConfig};
 use serde::{Deserialize, Serialize};
 use std::fmt;
@@ -212,7 +213,8 @@ pub struct LearnerConfig {
     /// every curriculum room plus `eval_episodes` random episodes per room, and append the
     /// results to `eval.csv` in the run directory (design §4). 0: no evaluation.
     pub eval_every_updates: u64,
-    /// Random episodes per room in each evaluation during training (0: the routes only).
+    /// Random episodes per room in each evaluation during training (0: the routes only); a
+    /// stage that is a set of rooms spreads them over the set's first rooms (up to 4).
     /// The same seeded starts and goals every time, so the rows of `eval.csv` compare.
     pub eval_episodes: usize,
     /// The heartbeat interval (s). Actors deliver what they have at least every quarter
@@ -289,7 +291,10 @@ impl Default for WarmupConfig {
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct CurriculumConfig {
-    /// Built-in room names, easiest first.
+    /// The stages' rooms, easiest first. Each stage is a room name or path as `Room::load`
+    /// takes it (a built-in room, a room file, `generated:KIND:SEED[:PARAMS]`, a map), or a
+    /// set of rooms drawn per episode: alternatives separated by `|`, each a name or a range of
+    /// generated seeds `generated:KIND:A..B[:PARAMS]` (`dvnav_sim::room_set`).
     pub rooms: Vec<String>,
     /// Episodes of the current stage over which the success rate is measured.
     pub window: usize,
@@ -432,6 +437,28 @@ impl Config {
         positive("env.collision_substep", e.collision_substep)?;
         non_negative("env.min_start_goal_distance", e.min_start_goal_distance)?;
         non_negative("env.spawn_clearance", e.spawn_clearance)?;
+        non_negative("env.max_start_goal_distance", e.max_start_goal_distance)?;
+        e.robustness.check().map_err(|(k, r)| bad(&format!("env.robustness.{k}"), r))?;
+        if e.max_start_goal_distance > 0.0 && e.max_start_goal_distance < e.min_start_goal_distance
+        {
+            return Err(bad(
+                "env.max_start_goal_distance",
+                format!(
+                    "{} is below env.min_start_goal_distance ({}); set it higher, or 0 for no bound",
+                    e.max_start_goal_distance, e.min_start_goal_distance
+                ),
+            ));
+        }
+        if e.max_path_ratio != 0.0 && !(e.max_path_ratio >= 1.0 && e.max_path_ratio.is_finite()) {
+            return Err(bad(
+                "env.max_path_ratio",
+                format!(
+                    "must be 0 (no bound) or at least 1 (a path is never shorter than the \
+                     straight line), got {}",
+                    e.max_path_ratio
+                ),
+            ));
+        }
         if e.max_steps == 0 {
             return Err(bad("env.max_steps", "must be at least 1"));
         }
@@ -564,6 +591,9 @@ impl Config {
         if c.rooms.is_empty() {
             return Err(bad("curriculum.rooms", "needs at least one room"));
         }
+        for (i, stage) in c.rooms.iter().enumerate() {
+            validate_stage(stage).map_err(|e| bad(&format!("curriculum.rooms[{i}]"), e))?;
+        }
         if c.window == 0 {
             return Err(bad("curriculum.window", "must be at least 1"));
         }
@@ -618,8 +648,21 @@ impl Config {
             ));
         }
         let need = hi + e.spawn_clearance;
+        // Built-in rooms named in any stage (alone or in a set); other rooms are checked when
+        // they are loaded, and stages that do not parse are reported by `validate`.
+        let named: Vec<String> = self
+            .curriculum
+            .rooms
+            .iter()
+            .filter_map(|stage| RoomSet::parse(stage).ok())
+            .flat_map(|set| set.alternatives().to_vec())
+            .filter_map(|a| match a {
+                Alternative::Name(n) => Some(n),
+                Alternative::Generated { .. } => None,
+            })
+            .collect();
         for spec in dvnav_sim::room_file::builtin_specs() {
-            if self.curriculum.rooms.contains(&spec.name) && need >= spec.side / 2.0 {
+            if named.contains(&spec.name) && need >= spec.side / 2.0 {
                 return Err(bad(
                     "env.radius_range",
                     format!(
@@ -648,6 +691,31 @@ impl NetConfig {
 
 fn conv_len(input: usize, kernel: usize, stride: usize) -> Option<usize> {
     (input >= kernel && stride > 0).then(|| (input - kernel) / stride + 1)
+}
+
+/// One `curriculum.rooms` entry: a room set whose names are built-in rooms, generated rooms
+/// (checked by parsing; built when loaded), or files that exist (a map image may carry
+/// `:resolution=…` after its path).
+fn validate_stage(stage: &str) -> Result<(), String> {
+    let set = RoomSet::parse(stage).map_err(|e| format!("{e:#}"))?;
+    let builtin = dvnav_sim::Room::builtin_names();
+    for alt in set.alternatives() {
+        let Alternative::Name(name) = alt else { continue };
+        let is_file = |p: &str| Path::new(p).is_file();
+        let known = builtin.contains(name)
+            || name.starts_with(dvnav_sim::generate::PREFIX)
+            || is_file(name)
+            || (dvnav_sim::grid_map::is_map_name(name)
+                && name.rsplit_once(':').is_some_and(|(path, _)| is_file(path)));
+        if !known {
+            return Err(format!(
+                "room `{name}` is neither a built-in room ({}), a generated room \
+                 (generated:KIND:SEED or generated:KIND:A..B), nor an existing file",
+                builtin.join(", ")
+            ));
+        }
+    }
+    Ok(())
 }
 
 fn finite(key: &str, v: f64) -> Result<(), ConfigError> {
@@ -715,6 +783,57 @@ mod tests {
         back.curriculum.rooms = CurriculumConfig::default().rooms;
         assert_eq!(back, Config::default(), "everything else is the default");
         assert_eq!(Config::from_toml_str(&ri.to_toml_string()).unwrap(), ri);
+    }
+
+    #[test]
+    fn the_generalist_config_is_the_defaults_with_a_curriculum_of_room_sets() {
+        let g = Config::from_toml_str(include_str!("../../../configs/generalist.toml")).unwrap();
+        g.validate().unwrap();
+        assert_eq!(g.curriculum.rooms.len(), 4);
+        assert_eq!(g.curriculum.rooms[3], "env3");
+        let mut back = g.clone();
+        back.curriculum.rooms = CurriculumConfig::default().rooms;
+        assert_eq!(back, Config::default(), "everything else is the default");
+        for stage in &g.curriculum.rooms[..3] {
+            let set = RoomSet::parse(stage).unwrap();
+            assert!(!set.is_single(), "{stage}");
+            // Training seeds only: every range ends at or below 9000 (the held-out seeds).
+            for alt in set.alternatives() {
+                if let Alternative::Generated { seeds, .. } = alt {
+                    assert!(seeds.end <= 9000, "{stage}");
+                }
+            }
+            // The first rooms of each stage build.
+            for name in set.sample(3) {
+                let rooms = dvnav_sim::Room::load(&name).unwrap();
+                assert_eq!(rooms[0].name(), name);
+            }
+        }
+    }
+
+    #[test]
+    fn curriculum_stages_must_be_room_sets_of_known_rooms() {
+        let refused = |rooms: &str, key: &str, words: &str| {
+            let e = Config::from_toml_str(&format!("[curriculum]\nrooms = {rooms}\n")).unwrap_err();
+            assert_eq!(e.key, key, "{e}");
+            assert!(e.reason.contains(words), "{e}");
+        };
+        refused(r#"["env0", "env9"]"#, "curriculum.rooms[1]", "room `env9` is neither a built-in");
+        refused(r#"["env0|nowhere.toml"]"#, "curriculum.rooms[0]", "`nowhere.toml`");
+        refused(r#"["env0", "env1||env2"]"#, "curriculum.rooms[1]", "is empty");
+        refused(r#"["generated:clutter:7..7"]"#, "curriculum.rooms[0]", "`7..7` is empty");
+        refused(r#"["generated:maze:0..9"]"#, "curriculum.rooms[0]", "unknown generator kind");
+        // Room files are found from the working directory (the crate's, in tests).
+        let file = concat!(env!("CARGO_MANIFEST_DIR"), "/../../rooms/training.toml");
+        let ok = format!(r#"["env0|generated:rooms:0..10", "generated:paper:3", "{file}"]"#);
+        Config::from_toml_str(&format!("[curriculum]\nrooms = {ok}\n")).unwrap();
+        // The radius check reaches built-in rooms inside sets.
+        let e = Config::from_toml_str(
+            "[env]\nradius_input = true\nradius_range = [0.2, 2.45]\n\
+             [curriculum]\nrooms = [\"generated:rooms:0..10|env3\"]\n",
+        )
+        .unwrap_err();
+        assert!(e.key == "env.radius_range" && e.reason.contains("`env3`"), "{e}");
     }
 
     #[test]

@@ -2,6 +2,7 @@
 //! ([`Recorder`]), and [`run_episode`], which plays a [`NavEnv`]'s current episode to its end
 //! with one policy.
 
+use super::smoothness::{CommandCounter, CommandStats};
 use dvnav_nav::policy::NavPolicy;
 use dvnav_sim::{NavEnv, Pose2};
 use dvnav_sim::{Outcome, score};
@@ -28,6 +29,9 @@ pub struct EpisodeResult {
     pub score: f64,
     /// Undiscounted sum of rewards.
     pub episode_return: f64,
+    /// How smooth its angular commands were.
+    #[serde(skip)]
+    pub commands: CommandStats,
     /// The start pose, then the pose after every step (for figures and logs).
     #[serde(skip)]
     pub trajectory: Vec<Pose2>,
@@ -67,6 +71,7 @@ pub struct StepSample {
 pub struct Recorder {
     trajectory: Vec<Pose2>,
     path_length: f64,
+    commands: CommandCounter,
     samples: Option<Vec<StepSample>>,
 }
 
@@ -77,6 +82,7 @@ impl Recorder {
         let mut r = Recorder {
             trajectory: Vec::with_capacity(64),
             path_length: 0.0,
+            commands: CommandCounter::new(env.config().omega_max),
             samples: samples.then(Vec::new),
         };
         r.trajectory.push(env.pose());
@@ -91,6 +97,7 @@ impl Recorder {
             self.path_length += (p.x - last.x).hypot(p.y - last.y);
         }
         self.trajectory.push(p);
+        self.commands.push(env.velocity().1);
         self.sample(env, reward);
     }
 
@@ -128,6 +135,7 @@ impl Recorder {
             path_length_m: self.path_length,
             score: score(outcome, steps, cfg.max_steps),
             episode_return: env.episode_return(),
+            commands: self.commands.stats(),
             trajectory: self.trajectory,
         };
         (result, self.samples)

@@ -59,6 +59,7 @@ pub mod gate;
 pub mod log;
 pub mod runner;
 pub mod scenario;
+pub mod smoothness;
 pub mod summary;
 pub mod task;
 
@@ -68,7 +69,8 @@ pub use log::EvalLogger;
 pub use runner::{Job, LegDone, Plan, RunOptions, run_jobs};
 pub use scenario::{
     RobotResult, TRAINING_ROUTE, parse_radii, robot_results, robot_tasks, room_summaries,
-    training_tasks,
+    room_tasks, training_tasks,
 };
+pub use smoothness::{CommandCounter, CommandStats};
 pub use summary::{LegSummary, Rates, RoomSummary, RouteResult, aggregate};
 pub use task::{Task, TaskKind, episode_seed, run_tasks};

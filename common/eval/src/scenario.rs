@@ -10,6 +10,7 @@
 
 use super::episode::EpisodeResult;
 use super::gate::{GateGeometry, GateRoute};
+use super::smoothness::CommandStats;
 use super::summary::{RoomSummary, RouteResult, aggregate};
 use super::task::{Task, TaskKind, episode_seed};
 use dvnav_sim::Outcome;
@@ -43,6 +44,31 @@ pub fn training_tasks(rooms: &[Arc<Room>], route: &str, episodes: usize, seed: u
             seed: episode_seed(seed, room.name(), index),
             policy: 0,
         }));
+    }
+    tasks
+}
+
+/// `episodes` random episodes in every room for every robot: robot i (a footprint, and the
+/// radius reports give it; `None`: the configured robot) is driven by policy i. Episode k of a
+/// room starts from the same seed for every robot, so robots of one size meet the same tasks.
+pub fn room_tasks(
+    rooms: &[Arc<Room>],
+    robots: &[Option<(Footprint, f64)>],
+    episodes: usize,
+    seed: u64,
+) -> Vec<Task> {
+    let mut tasks = Vec::new();
+    for room in rooms {
+        for (i, robot) in robots.iter().enumerate() {
+            tasks.extend((0..episodes).map(|index| Task {
+                room: room.clone(),
+                footprint: robot.as_ref().map(|r| r.0.clone()),
+                radius: robot.as_ref().map(|r| r.1),
+                kind: TaskKind::Random { index },
+                seed: episode_seed(seed, room.name(), index),
+                policy: i,
+            }));
+        }
     }
     tasks
 }
@@ -114,6 +140,10 @@ pub struct RobotResult {
     pub score: f64,
     /// Which way it went.
     pub route: GateRoute,
+    /// Share of the route's control cycles where ω changed sign by more than ω_max.
+    pub reversal_rate: f64,
+    /// Mean |Δω| per control cycle over the route (rad/s).
+    pub mean_abs_domega: f64,
 }
 
 /// One row per route task of `tasks` (a robot of the gate test), classified by `geometry`.
@@ -133,6 +163,7 @@ pub fn robot_results(
                 _ => Outcome::Success,
             };
             let path: Vec<[f64; 2]> = legs.iter().flat_map(|l| l.points()).collect();
+            let commands = legs.iter().fold(CommandStats::default(), |a, l| a.pooled(l.commands));
             Some(RobotResult {
                 room: t.room.name().to_string(),
                 radius: t.radius.unwrap_or(f64::NAN),
@@ -142,6 +173,8 @@ pub fn robot_results(
                 path_length_m: summary.path_length_m,
                 score: summary.score,
                 route: geometry.classify(&path),
+                reversal_rate: commands.reversal_rate(),
+                mean_abs_domega: commands.mean_abs_domega(),
             })
         })
         .collect()
@@ -151,8 +184,21 @@ pub fn robot_results(
 /// robots. A single number is one radius.
 pub fn parse_radii(s: &str) -> anyhow::Result<Vec<f64>> {
     let bad = |why: &str| {
-        anyhow::anyhow!("radii `{s}`: {why} (expected START:STOP:STEP, e.g. 0.20:0.75:0.05)")
+        anyhow::anyhow!(
+            "radii `{s}`: {why} (expected START:STOP:STEP, e.g. 0.20:0.75:0.05, or a list, \
+             e.g. 0.2,0.3,0.4,0.6)"
+        )
     };
+    if s.contains(',') {
+        let radii: Vec<f64> = s
+            .split(',')
+            .map(|p| p.trim().parse::<f64>().map_err(|_| bad(&format!("`{p}` is not a number"))))
+            .collect::<anyhow::Result<_>>()?;
+        if let Some(r) = radii.iter().find(|r| !(r.is_finite() && **r > 0.0)) {
+            return Err(bad(&format!("radii must be above 0, got {r}")));
+        }
+        return Ok(radii);
+    }
     let parts: Vec<f64> = s
         .split(':')
         .map(|p| p.trim().parse::<f64>().map_err(|_| bad(&format!("`{p}` is not a number"))))
@@ -195,6 +241,8 @@ mod tests {
         assert_eq!((r[0], r[3], r[11]), (0.2, 0.35, 0.75));
         assert_eq!(parse_radii("0.4").unwrap(), vec![0.4]);
         assert_eq!(parse_radii("0.2:0.6:0.2").unwrap(), vec![0.2, 0.4, 0.6]);
+        assert_eq!(parse_radii("0.2, 0.3,0.6").unwrap(), vec![0.2, 0.3, 0.6]);
+        assert!(parse_radii("0.2,-1").unwrap_err().to_string().contains("above 0"));
         for bad in ["", "a:b:c", "0.2:0.1:0.05", "0.2:0.5:0", "0:0.5:0.1", "0.2:0.5", "-1"] {
             let e = parse_radii(bad).unwrap_err().to_string();
             assert!(e.contains("radii") && e.contains("START:STOP:STEP"), "{bad}: {e}");

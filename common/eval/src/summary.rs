@@ -2,6 +2,7 @@
 //! route's result ([`RouteResult`]), and one room's row ([`RoomSummary`]).
 
 use super::episode::EpisodeResult;
+use super::smoothness::CommandStats;
 use dvnav_sim::Outcome;
 use serde::Serialize;
 
@@ -23,12 +24,18 @@ pub struct Rates {
     pub mean_time_s: Option<f64>,
     /// Mean path length (m) over the successful episodes only.
     pub mean_path_length_m: Option<f64>,
+    /// Share of control cycles, over all episodes, where ω changed sign by more than ω_max
+    /// ([`super::smoothness`]; NaN, `null`, with no cycle).
+    pub reversal_rate: f64,
+    /// Mean |Δω| per control cycle over all episodes (rad/s).
+    pub mean_abs_domega: f64,
 }
 
 /// Rates and means of `episodes`.
 pub fn aggregate(episodes: &[EpisodeResult]) -> Rates {
     let n = episodes.len();
     let share = |o: Outcome| episodes.iter().filter(|e| e.outcome == o).count() as f64 / n as f64;
+    let commands = episodes.iter().fold(CommandStats::default(), |a, e| a.pooled(e.commands));
     let ok: Vec<&EpisodeResult> =
         episodes.iter().filter(|e| e.outcome == Outcome::Success).collect();
     let mean_ok = |f: fn(&EpisodeResult) -> f64| {
@@ -42,6 +49,8 @@ pub fn aggregate(episodes: &[EpisodeResult]) -> Rates {
         mean_score: episodes.iter().map(|e| e.score).sum::<f64>() / n as f64,
         mean_time_s: mean_ok(|e| e.time_s),
         mean_path_length_m: mean_ok(|e| e.path_length_m),
+        reversal_rate: commands.reversal_rate(),
+        mean_abs_domega: commands.mean_abs_domega(),
     }
 }
 
@@ -148,6 +157,11 @@ mod tests {
             path_length_m: steps as f64 * 0.1,
             score: dvnav_sim::score(outcome, steps, 400),
             episode_return: 0.0,
+            commands: CommandStats {
+                transitions: steps,
+                reversals: steps / 10,
+                sum_abs_domega: 0.1 * steps as f64,
+            },
             trajectory: Vec::new(),
         }
     }
@@ -168,6 +182,9 @@ mod tests {
         // (20 s + 40 s) / 2: the collision and the timeout do not count.
         assert!((r.mean_time_s.unwrap() - 30.0).abs() < 1e-9);
         assert!((r.mean_path_length_m.unwrap() - 15.0).abs() < 1e-9);
+        // Pooled over the 710 cycles of all four episodes, failures included.
+        assert!((r.reversal_rate - 71.0 / 710.0).abs() < 1e-12, "{}", r.reversal_rate);
+        assert!((r.mean_abs_domega - 0.1).abs() < 1e-12, "{}", r.mean_abs_domega);
         let none = aggregate(&[ep(Outcome::Collision, 5)]);
         assert_eq!((none.mean_time_s, none.mean_score, none.success_rate), (None, -1.0, 0.0));
         let empty = aggregate(&[]);

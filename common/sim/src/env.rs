@@ -1,12 +1,16 @@
 //! [`NavEnv`]: one navigation episode at a time for a robot of any footprint (design §2).
 
+use super::grid::Reach;
 use super::room::Body;
 use super::{Footprint, Lidar, Pose2, Room, wrap_angle};
 use crate::EnvConfig;
 use crate::Outcome;
 use crate::obs;
+use crate::robustness::Perturbation;
 use rand::{Rng, SeedableRng};
+use rand_distr::{Distribution, Normal};
 use rand_pcg::Pcg64;
+use std::collections::VecDeque;
 use std::sync::Arc;
 
 /// What one control step produced.
@@ -21,6 +25,9 @@ pub struct StepOutcome {
 /// Tries per point before the sampler gives up on a room; the built-in rooms are mostly free
 /// space, so a handful of tries suffices there.
 const SAMPLE_TRIES: usize = 10_000;
+
+/// Folded into an environment's seed for its robustness generator.
+const ROBUSTNESS_STREAM: u64 = 0x0b05_7e55_d1ce_5eed;
 
 /// One environment: a room, a robot (its footprint, unicycle kinematics, the LiDAR at the axle
 /// centre), a goal, and the episode's bookkeeping. The robot is the circular meta robot of
@@ -68,6 +75,13 @@ pub struct NavEnv {
     goal_distance: f64,
     /// The scan at the current pose, computed once per step or reset.
     scan: Vec<f32>,
+    /// Draws the robustness perturbations (dropout, actuation noise, jitter, per-episode
+    /// ranges), apart from `rng` so they never change a seed's tasks.
+    robust_rng: Pcg64,
+    /// This episode's perturbations.
+    perturb: Perturbation,
+    /// With observation latency k: the last k + 1 observations, oldest first.
+    history: VecDeque<Vec<f32>>,
 }
 
 impl NavEnv {
@@ -133,6 +147,9 @@ impl NavEnv {
             episode_return: 0.0,
             done: None,
             goal_distance: 0.0,
+            robust_rng: Pcg64::seed_from_u64(seed ^ ROBUSTNESS_STREAM),
+            perturb: Perturbation::default(),
+            history: VecDeque::new(),
         };
         env.reset();
         env
@@ -141,7 +158,10 @@ impl NavEnv {
     /// Starts a new episode: a start (uniform position, uniform heading) and a goal drawn at
     /// random in free space, each with at least the footprint's bounding radius plus
     /// `spawn_clearance` to every wall and obstacle (timed obstacles included), at least
-    /// `min_start_goal_distance` apart. When the room has spawn regions, starts come from the
+    /// `min_start_goal_distance` apart (and at most `max_start_goal_distance` when set), the
+    /// goal reachable from the start for a disc of the footprint's bounding radius
+    /// (`reachable_tasks`) by a path at most `max_path_ratio` times the straight line (when
+    /// set). When the room has spawn regions, starts come from the
     /// regions for starts and goals from those for goals (a region is picked in proportion to
     /// its area). A room set with [`NavEnv::set_room`] takes effect here. With a radius range
     /// the robot's radius is drawn first, from the same generator.
@@ -155,11 +175,28 @@ impl NavEnv {
             self.set_circle(r);
         }
         let need = self.footprint.bounding_radius() + self.cfg.spawn_clearance;
+        // The grid for the radius rounded up to whole centimetres, so a drawn radius range
+        // shares a few grids per room; the rounding comes out of the join slack.
+        let r = self.footprint.bounding_radius();
+        let r_grid = (r * 100.0).ceil() / 100.0;
+        let reach = (self.cfg.reachable_tasks || self.cfg.max_path_ratio > 0.0)
+            .then(|| self.room.reach(r_grid));
+        let slack = self.cfg.spawn_clearance - (r_grid - r);
         for _ in 0..100 {
             let start = self.sample_free(need, true);
+            if reach.as_ref().is_some_and(|r| r.component_at(start, slack).is_none()) {
+                continue;
+            }
             for _ in 0..100 {
                 let goal = self.sample_free(need, false);
-                if dist(start, goal) >= self.cfg.min_start_goal_distance {
+                let d = dist(start, goal);
+                let far_enough = d >= self.cfg.min_start_goal_distance;
+                let near_enough = self.cfg.max_start_goal_distance <= 0.0
+                    || d <= self.cfg.max_start_goal_distance;
+                if far_enough
+                    && near_enough
+                    && self.task_ok(reach.as_deref(), slack, start, goal, d)
+                {
                     let yaw = self.rng.random_range(-std::f64::consts::PI..std::f64::consts::PI);
                     self.begin(Pose2::new(start[0], start[1], yaw), goal);
                     return;
@@ -167,10 +204,34 @@ impl NavEnv {
             }
         }
         panic!(
-            "room `{}`: found no start and goal {} m apart with {need} m clearance",
+            "room `{}`: found no start and goal {} m apart with {need} m clearance that the \
+             robot can drive between (env.reachable_tasks, max_start_goal_distance {}, \
+             max_path_ratio {})",
             self.room.name(),
-            self.cfg.min_start_goal_distance
+            self.cfg.min_start_goal_distance,
+            self.cfg.max_start_goal_distance,
+            self.cfg.max_path_ratio
         );
+    }
+
+    /// Whether the robot can drive from `start` to `goal` (`d` apart), within the path-ratio
+    /// bound when there is one.
+    fn task_ok(
+        &self,
+        reach: Option<&Reach>,
+        slack: f64,
+        start: [f64; 2],
+        goal: [f64; 2],
+        d: f64,
+    ) -> bool {
+        let Some(reach) = reach else { return true };
+        if self.cfg.max_path_ratio > 0.0 {
+            reach
+                .path_length(start, goal, slack)
+                .is_some_and(|len| len <= self.cfg.max_path_ratio * d)
+        } else {
+            reach.connected(start, goal, slack)
+        }
     }
 
     /// Starts a new episode from `start` towards `goal` (evaluation routes). Neither is checked
@@ -243,6 +304,13 @@ impl NavEnv {
     }
 
     fn begin(&mut self, start: Pose2, goal: [f64; 2]) {
+        let p = Perturbation::draw(
+            &self.cfg.robustness,
+            self.cfg.lidar.noise_std,
+            &mut self.robust_rng,
+        );
+        self.lidar.set_noise_std(p.noise_std);
+        self.perturb = p;
         let start = Pose2 { yaw: wrap_angle(start.yaw), ..start };
         self.start = start;
         self.pose = start;
@@ -255,11 +323,36 @@ impl NavEnv {
         self.active = self.room.timed_active(0);
         self.goal_distance = dist(start.position(), goal);
         self.update_scan();
+        self.history.clear();
+        if self.perturb.latency_steps > 0 {
+            let mut o = vec![0.0; self.obs_dim()];
+            self.compose_obs(&mut o);
+            self.history.extend(std::iter::repeat_n(o, self.perturb.latency_steps as usize + 1));
+        }
+    }
+
+    /// Keeps the observation just made for the latency buffer.
+    fn remember_obs(&mut self) {
+        if self.perturb.latency_steps == 0 {
+            return;
+        }
+        let mut o = self.history.pop_front().unwrap_or_else(|| vec![0.0; self.obs_dim()]);
+        self.compose_obs(&mut o);
+        self.history.push_back(o);
     }
 
     fn update_scan(&mut self) {
-        let noise = (self.cfg.lidar.noise_std > 0.0).then_some(&mut self.noise_rng);
+        let noise = (self.perturb.noise_std > 0.0).then_some(&mut self.noise_rng);
         self.lidar.scan_active(&self.room, self.pose, self.active, noise, &mut self.scan);
+        let p = self.perturb.beam_dropout;
+        if p > 0.0 {
+            let max = self.cfg.lidar.range_max as f32;
+            for r in self.scan.iter_mut() {
+                if self.robust_rng.random_bool(p) {
+                    *r = if self.robust_rng.random_bool(0.5) { max } else { 0.0 };
+                }
+            }
+        }
     }
 
     /// Applies the command `(v, ω)` for one control period `dt`.
@@ -283,12 +376,30 @@ impl NavEnv {
             return StepOutcome { reward: 0.0, done: Some(outcome) };
         }
         let clamp = |x: f64, lo: f64, hi: f64| if x.is_nan() { 0.0 } else { x.clamp(lo, hi) };
+        let omega_prev = (self.steps > 0).then_some(self.omega);
         let v = clamp(v, 0.0, self.cfg.v_max);
         let omega = clamp(omega, -self.cfg.omega_max, self.cfg.omega_max);
         self.v = v;
         self.omega = omega;
-
-        let dt = self.cfg.dt;
+        // What the motors do: the command plus actuation noise, within the bounds again.
+        let [sv, sw] = self.perturb.actuation_noise_std;
+        let mut gauss = |s: f64| {
+            if s > 0.0 {
+                Normal::new(0.0, s).map_or(0.0, |n| n.sample(&mut self.robust_rng))
+            } else {
+                0.0
+            }
+        };
+        let (v, omega) = (
+            clamp(v + gauss(sv), 0.0, self.cfg.v_max),
+            clamp(omega + gauss(sw), -self.cfg.omega_max, self.cfg.omega_max),
+        );
+        let j = self.perturb.dt_jitter;
+        let dt = if j > 0.0 {
+            self.cfg.dt * (1.0 + self.robust_rng.random_range(-j..=j))
+        } else {
+            self.cfg.dt
+        };
         let from = self.pose;
         let travel = (v + omega.abs() * self.sweep_radius) * dt;
         let substeps = ((travel / self.cfg.collision_substep).ceil() as usize).max(1);
@@ -318,13 +429,17 @@ impl NavEnv {
         } else if self.goal_distance <= self.cfg.goal_tolerance {
             (rw.success, Some(Outcome::Success))
         } else {
-            let r = rw.progress * (d_prev - self.goal_distance) - rw.time_penalty;
+            let change = omega_prev.map_or(0.0, |w| (self.omega - w).abs());
+            let r = rw.progress * (d_prev - self.goal_distance)
+                - rw.time_penalty
+                - rw.omega_change * change;
             (r, (self.steps >= self.cfg.max_steps).then_some(Outcome::Timeout))
         };
         let reward = reward as f32;
         self.episode_return += reward as f64;
         self.done = done;
         self.update_scan();
+        self.remember_obs();
         StepOutcome { reward, done }
     }
 
@@ -340,8 +455,24 @@ impl NavEnv {
     ///
     /// # Panics
     /// If `out` is not [`NavEnv::obs_dim`] long.
+    ///
+    /// With observation latency (`env.robustness.latency_steps` = k) it writes the observation
+    /// of k steps ago instead (the reset's while the episode is younger).
     pub fn write_obs(&self, out: &mut [f32]) {
         assert_eq!(out.len(), self.obs_dim(), "observation buffer length");
+        match self.history.front() {
+            Some(old) => out.copy_from_slice(old),
+            None => self.compose_obs(out),
+        }
+    }
+
+    /// This episode's robustness perturbations ([`crate::robustness`]).
+    pub fn perturbation(&self) -> Perturbation {
+        self.perturb
+    }
+
+    /// The observation at the current pose (see [`NavEnv::write_obs`]).
+    fn compose_obs(&self, out: &mut [f32]) {
         let beams = self.scan.len();
         out[..beams].copy_from_slice(&self.scan);
         let extra = &mut out[beams..];

@@ -41,6 +41,19 @@ pub struct EnvConfig {
     pub min_start_goal_distance: f64,
     /// Extra free space (m) beyond the footprint required around sampled starts and goals.
     pub spawn_clearance: f64,
+    /// Start and goal are drawn at most this far apart (m); 0: no bound.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub max_start_goal_distance: f64,
+    /// Sampled goals are reachable from the start for the robot's size: a disc of its bounding
+    /// radius can drive from one to the other (a grid search, `dvnav_sim::grid`). Rooms that
+    /// a gate or a door splits for big robots need it; in an open room it rejects nothing.
+    #[serde(skip_serializing_if = "is_true")]
+    pub reachable_tasks: bool,
+    /// The shortest path from start to goal (for the robot's size) is at most this many times
+    /// the straight line; 0: no bound. Local tasks in buildings use 1.5. Implies
+    /// `reachable_tasks`.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub max_path_ratio: f64,
     /// Longest translation (m) between two collision checks within one control step; keeps a
     /// fast robot from passing through a thin wall.
     pub collision_substep: f64,
@@ -48,6 +61,24 @@ pub struct EnvConfig {
     pub lidar: LidarConfig,
     /// The reward function.
     pub reward: RewardConfig,
+    /// LiDAR dropout, observation latency, actuation noise and control-period jitter
+    /// (`[env.robustness]`; none by default).
+    #[serde(skip_serializing_if = "is_default")]
+    pub robustness: crate::RobustnessConfig,
+}
+
+// Keys added after the first release stay out of a config's TOML (and its hash) while they
+// hold their defaults, so older runs keep their config hashes.
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
+}
+
+fn is_true(b: &bool) -> bool {
+    *b
+}
+
+fn is_default(r: &crate::RobustnessConfig) -> bool {
+    *r == crate::RobustnessConfig::default()
 }
 
 impl Default for EnvConfig {
@@ -64,9 +95,13 @@ impl Default for EnvConfig {
             max_steps: 400,
             min_start_goal_distance: 1.0,
             spawn_clearance: 0.1,
+            max_start_goal_distance: 0.0,
+            reachable_tasks: true,
+            max_path_ratio: 0.0,
             collision_substep: 0.02,
             lidar: LidarConfig::default(),
             reward: RewardConfig::default(),
+            robustness: crate::RobustnessConfig::default(),
         }
     }
 }
@@ -105,11 +140,22 @@ pub struct RewardConfig {
     pub progress: f64,
     /// c2: time penalty per step.
     pub time_penalty: f64,
+    /// c3: penalty per rad/s of change in the angular command from one step to the next,
+    /// c3·|ω_t − ω_{t−1}| (not in the paper; 0 keeps its reward). Against the ω chatter real
+    /// motors suffer (`dvnav eval`'s `reversal_rate`); the first step after a reset is free.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub omega_change: f64,
 }
 
 impl Default for RewardConfig {
     fn default() -> Self {
-        Self { success: 10.0, collision: -10.0, progress: 2.0, time_penalty: 0.01 }
+        Self {
+            success: 10.0,
+            collision: -10.0,
+            progress: 2.0,
+            time_penalty: 0.01,
+            omega_change: 0.0,
+        }
     }
 }
 

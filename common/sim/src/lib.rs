@@ -13,6 +13,10 @@
 //! - [`room_file`]: the TOML room file format, its loader (errors name the line and the
 //!   reason) and the built-in rooms of `rooms/` (Env_0..Env_3, `sac_ri`, `gate`, `dynamic`),
 //!   embedded in the binary.
+//! - [`grid_map`]: occupancy-grid maps (ROS map_server YAML + PGM/PNG, or a plain image) as
+//!   rooms: unknown cells count as obstacles, obstacle cells merge into boxes.
+//! - [`room_set`]: a curriculum stage as a set of rooms (`env0|generated:clutter:0..2000`),
+//!   one drawn per episode, and deterministic samples of it for evaluation.
 //! - [`Footprint`]: the robot's shape (a union of convex parts, LiDAR at the origin), also a
 //!   small TOML file.
 //! - [`Room`]: one room's geometry behind rapier2d's query pipeline (ray casts, overlap
@@ -48,11 +52,16 @@ mod caster;
 mod env;
 mod env_config;
 mod footprint;
+pub mod generate;
+pub mod grid;
+pub mod grid_map;
 mod lidar;
 pub mod obs;
 mod outcome;
+pub mod robustness;
 mod room;
 pub mod room_file;
+pub mod room_set;
 pub mod spec;
 mod vec_env;
 
@@ -62,6 +71,7 @@ pub use footprint::Footprint;
 pub use footprint::checked_parts;
 pub use lidar::Lidar;
 pub use outcome::{Outcome, score};
+pub use robustness::{RandomizeConfig, RobustnessConfig};
 pub use room::Room;
 pub use room_file::SpecFileError;
 pub use spec::{ObstacleSpec, Point, RoomSpec, Route, SpawnRegion, TimedObstacle, WallSegment};

@@ -52,6 +52,15 @@ impl Lidar {
         }
     }
 
+    /// Sets the range noise σ (m) of the scans from now on (0: exact).
+    ///
+    /// # Panics
+    /// If `noise_std` is negative or not finite.
+    pub(crate) fn set_noise_std(&mut self, noise_std: f64) {
+        self.noise = (noise_std > 0.0)
+            .then(|| Normal::new(0.0, noise_std).expect("lidar noise σ must be finite"));
+    }
+
     /// Number of beams.
     pub fn beams(&self) -> usize {
         self.angles.len()

@@ -15,6 +15,7 @@
 use super::Pose2;
 use super::caster::{Beams, Caster};
 use super::footprint::Footprint;
+use super::grid::{ClearanceMap, Reach};
 use super::room_file::{self, SpecFileError};
 use super::spec::{ObstacleSpec, RoomSpec};
 use anyhow::Context;
@@ -22,7 +23,7 @@ use rapier2d::parry::query;
 use rapier2d::parry::shape::Ball;
 use rapier2d::prelude::*;
 use std::path::Path;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex, OnceLock};
 
 /// A room's walls and obstacles as rapier colliders, with the broad-phase BVH built, ready for
 /// ray casts and overlap tests. Immutable after construction, `Send + Sync`.
@@ -35,6 +36,10 @@ pub struct Room {
     caster: Caster,
     /// Timed obstacles, sorted by `at_step` (stable).
     timed: Vec<TimedShape>,
+    /// The static shapes rastered, built on first use (only rooms that sample tasks need it).
+    clearance_map: OnceLock<ClearanceMap>,
+    /// Where discs of the radii asked so far can go, by radius (bits of the `f64`).
+    reach: Mutex<Vec<(u64, Arc<Reach>)>>,
 }
 
 /// One timed obstacle, ready for queries.
@@ -151,7 +156,14 @@ impl Room {
             timed.push(TimedShape { at_step: t.at_step, parts, caster });
         }
         timed.sort_by_key(|t| t.at_step);
-        Ok(Room { spec, world, caster, timed })
+        Ok(Room {
+            spec,
+            world,
+            caster,
+            timed,
+            clearance_map: OnceLock::new(),
+            reach: Mutex::new(Vec::new()),
+        })
     }
 
     /// A built-in room (the files in `rooms/`, embedded in the binary): `env0`..`env3` (the
@@ -183,6 +195,20 @@ impl Room {
         ["env0", "env1", "env2", "env3"]
     }
 
+    /// The room of an occupancy-grid map ([`crate::grid_map`]), with errors that name the file
+    /// and the key.
+    pub fn from_map(name: &str) -> Result<Room, SpecFileError> {
+        let map = crate::grid_map::load(name)?;
+        let source = map.meta.image.display().to_string();
+        let room_name = map.spec.name.clone();
+        Room::try_new(map.spec).map_err(|e| SpecFileError {
+            source,
+            line: None,
+            key: String::new(),
+            reason: format!("room `{room_name}`: {e:#}"),
+        })
+    }
+
     /// Every room in a room file (one, or one per instance), checked and built.
     pub fn from_file(path: &Path) -> Result<Vec<Arc<Room>>, SpecFileError> {
         let specs = room_file::load_room_file(path)?;
@@ -200,14 +226,37 @@ impl Room {
             .collect()
     }
 
-    /// A built-in room by name, or the rooms of a room file when `name_or_path` ends in
-    /// `.toml` or names an existing file.
+    /// A built-in room by name, a generated room (`generated:KIND:SEED[:PARAMS]`, see
+    /// [`crate::generate`]), an occupancy-grid map (`.yaml`/`.yml`/`.png`/`.pgm`, or
+    /// `IMAGE.png:resolution=M`; see [`crate::grid_map`]), or the rooms of a room file when
+    /// `name_or_path` ends in `.toml` or names an existing file.
     pub fn load(name_or_path: &str) -> anyhow::Result<Vec<Arc<Room>>> {
+        if crate::grid_map::is_map_name(name_or_path) {
+            return Ok(vec![Arc::new(Room::from_map(name_or_path)?)]);
+        }
+        if name_or_path.starts_with(crate::generate::PREFIX) {
+            let spec = crate::generate::Generated::parse(name_or_path)?.generate()?;
+            return Ok(vec![Arc::new(Room::try_new(spec)?)]);
+        }
         let path = Path::new(name_or_path);
         if name_or_path.ends_with(".toml") || path.is_file() {
             return Ok(Room::from_file(path)?);
         }
         Ok(vec![Room::builtin(name_or_path)?])
+    }
+
+    /// Where a disc of `radius` can go in this room ([`crate::grid`]): computed on first use
+    /// for each radius and kept.
+    pub fn reach(&self, radius: f64) -> Arc<Reach> {
+        let key = radius.to_bits();
+        let mut cache = self.reach.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((_, r)) = cache.iter().find(|(k, _)| *k == key) {
+            return r.clone();
+        }
+        let map = self.clearance_map.get_or_init(|| ClearanceMap::of_room(&self.spec));
+        let r = Arc::new(map.reach(radius));
+        cache.push((key, r.clone()));
+        r
     }
 
     /// The data this room was built from.

@@ -83,20 +83,21 @@ fn oracle(c: &Caster, p: [f64; 2], d: [f64; 2]) -> Option<f64> {
 
 /// What one comparison saw.
 #[derive(Default, Debug)]
-struct Tally {
-    poses: usize,
-    inside: usize,
+pub(crate) struct Tally {
+    pub poses: usize,
+    pub inside: usize,
     /// Beams that read less than range_max (a return).
-    returns: usize,
+    pub returns: usize,
     /// Beams compared.
-    beams: usize,
+    pub beams: usize,
     /// Beams where rapier is off by more than TOL (grazing incidence, f32 direction).
-    grazing: usize,
+    pub grazing: usize,
 }
 
 /// Scans at `pose` both ways and asserts that every beam agrees within [`TOL`]. Returns
-/// false (and checks nothing) when the pose is too close to a boundary.
-fn agree(room: &Room, lidar: &Lidar, pose: Pose2, tally: &mut Tally) -> bool {
+/// false (and checks nothing) when the pose is too close to a boundary. Also used by the tests
+/// of `grid_map.rs`.
+pub(crate) fn agree(room: &Room, lidar: &Lidar, pose: Pose2, tally: &mut Tally) -> bool {
     let p = pose.position();
     if boundary_distance(room.caster(), p) < MARGIN {
         return false;
@@ -427,4 +428,124 @@ fn beyond_range_max_reads_range_max() {
         let mut tally = Tally::default();
         assert!(agree(&room, &lidar, Pose2::new(0.0, 0.1, 0.0), &mut tally));
     }
+}
+
+#[test]
+fn fast_atan2_is_within_its_error_bound() {
+    let mut worst: f64 = 0.0;
+    for k in 0..200_000 {
+        let a = -PI + TAU * k as f64 / 200_000.0;
+        for r in [1e-6, 1.0, 1e3] {
+            let (y, x) = (r * a.sin(), r * a.cos());
+            let d = (fast_atan2(y, x) - y.atan2(x)).abs();
+            worst = worst.max(d.min(TAU - d));
+        }
+    }
+    for (y, x) in [(0.0, 1.0), (1.0, 0.0), (0.0, -1.0), (-1.0, 0.0), (1.0, 1.0), (-1.0, -1.0)] {
+        let d = (fast_atan2(y, x) - f64::atan2(y, x)).abs();
+        worst = worst.max(d.min(TAU - d));
+    }
+    assert!(worst < 2e-5 && 10.0 * worst <= CULL_SLACK, "worst error {worst}");
+}
+
+#[test]
+fn a_box_silhouette_spans_all_its_corners() {
+    let mut rng = Pcg64::seed_from_u64(21);
+    for _ in 0..20_000 {
+        let (x0, y0) = (rng.random_range(-2.0..2.0), rng.random_range(-2.0..2.0));
+        let b = [x0, y0, x0 + rng.random_range(0.01..2.0), y0 + rng.random_range(0.01..2.0)];
+        let p = [rng.random_range(-5.0..5.0), rng.random_range(-5.0..5.0)];
+        if (b[0]..=b[2]).contains(&p[0]) && (b[1]..=b[3]).contains(&p[1]) {
+            continue;
+        }
+        let (lo, hi) = silhouette(&b, p);
+        let a_lo = lo[1].atan2(lo[0]);
+        let width = (hi[1].atan2(hi[0]) - a_lo).rem_euclid(TAU);
+        assert!(width < PI, "{b:?} from {p:?}");
+        for c in [[b[0], b[1]], [b[2], b[1]], [b[0], b[3]], [b[2], b[3]]] {
+            let a = (c[1] - p[1]).atan2(c[0] - p[0]);
+            let u = (a - a_lo).rem_euclid(TAU);
+            assert!(u <= width + 1e-12 || u >= TAU - 1e-12, "{b:?} from {p:?}: corner {c:?}");
+        }
+    }
+}
+
+/// A room of `n` shapes scattered over a `side` square: mostly small axis-aligned boxes (like
+/// an occupancy-grid map's), some turned boxes, circles and polygons.
+fn many_shape_room(rng: &mut Pcg64, side: f64, n: usize) -> Room {
+    let mut spec = RoomSpec::empty("many", side);
+    let h = side / 2.0;
+    while spec.obstacles.len() < n {
+        let o = if rng.random_range(0..4) == 0 {
+            random_obstacle(rng, h)
+        } else {
+            let center = [rng.random_range(-h..h), rng.random_range(-h..h)];
+            let half_extents = [rng.random_range(0.025..0.4), rng.random_range(0.025..0.1)];
+            let half_extents = if rng.random_bool(0.5) {
+                half_extents
+            } else {
+                [half_extents[1], half_extents[0]]
+            };
+            ObstacleSpec::Box { center, half_extents, angle: 0.0 }
+        };
+        if o.validate().is_ok() {
+            spec.obstacles.push(o);
+        }
+    }
+    Room::try_new(spec).unwrap()
+}
+
+#[test]
+fn culling_changes_no_reading_in_a_room_of_many_shapes() {
+    let mut rng = Pcg64::seed_from_u64(22);
+    for (side, n) in [(6.0, 80), (12.0, 400), (25.0, 1500)] {
+        let room = many_shape_room(&mut rng, side, n);
+        let culled = room.caster();
+        assert!(culled.has_grid());
+        let all = culled.without_grid();
+        for (fov, beams, max_range) in
+            [(270.0f64, 540, 10.0), (360.0, 720, 10.0), (90.0, 31, 3.0), (359.0, 97, 1.5)]
+        {
+            let fov = fov.to_radians();
+            let step = fov / beams as f64;
+            let first = -fov / 2.0 + step / 2.0;
+            let dirs: Vec<(f64, f64)> = (0..beams)
+                .map(|i| (first + step * i as f64).sin_cos())
+                .map(|(s, c)| (c, s))
+                .collect();
+            let b = Beams { first, step, dirs: &dirs };
+            let (mut fast, mut slow) = (vec![0.0f32; beams], vec![0.0f32; beams]);
+            for _ in 0..150 {
+                // Some poses beyond the walls too.
+                let h = side / 2.0 + 1.0;
+                let p = [rng.random_range(-h..h), rng.random_range(-h..h)];
+                let yaw = rng.random_range(-PI..PI);
+                assert_eq!(culled.inside_any(p), all.inside_any(p), "{p:?}");
+                culled.cast(p, yaw, b, max_range, &mut fast);
+                all.cast(p, yaw, b, max_range, &mut slow);
+                for i in 0..beams {
+                    let (f, s) = (fast[i] as f64, slow[i] as f64);
+                    assert!(
+                        f == s || (f > max_range && s > max_range),
+                        "side {side}, {p:?} yaw {yaw}, beam {i}: culled {f} vs all {s}"
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn a_room_of_many_shapes_matches_rapier() {
+    let mut rng = Pcg64::seed_from_u64(23);
+    let room = many_shape_room(&mut rng, 12.0, 300);
+    assert!(room.caster().has_grid());
+    let lidar = Lidar::new(&LidarConfig::default());
+    let mut tally = Tally::default();
+    for _ in 0..200 {
+        agree(&room, &lidar, random_pose(&mut rng, room.side()), &mut tally);
+    }
+    assert!(tally.poses >= 150 && tally.inside > 10, "{tally:?}");
+    assert!(tally.returns > 100 * lidar.beams(), "{tally:?}");
+    assert!(tally.grazing * 1000 < tally.beams, "{tally:?}");
 }

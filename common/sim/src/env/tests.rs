@@ -559,3 +559,208 @@ fn steps_per_second() {
     let s = t.elapsed().as_secs_f64();
     println!("rapier reference scan: {:.1} µs", s / m as f64 * 1e6);
 }
+
+/// A 6 m room split at x = 0 by a wall with a 0.8 m gap at the centre.
+fn split_room() -> Arc<Room> {
+    let mut spec = RoomSpec::empty("split", 6.0);
+    spec.wall_segments = vec![
+        crate::WallSegment { from: [0.0, 3.0], to: [0.0, 0.4], thickness: Some(0.1) },
+        crate::WallSegment { from: [0.0, -0.4], to: [0.0, -3.0], thickness: Some(0.1) },
+    ];
+    Arc::new(Room::new(spec))
+}
+
+#[test]
+fn sampled_tasks_are_reachable_for_the_robots_size() {
+    let room = split_room();
+    let big = Footprint::circle(0.5);
+    let mut env = NavEnv::with_footprint(room.clone(), &cfg(), 3, big.clone());
+    for _ in 0..200 {
+        env.reset();
+        let (s, g) = (env.start().position(), env.goal());
+        assert_eq!(s[0].signum(), g[0].signum(), "{s:?} -> {g:?} crosses the gap");
+    }
+    // Without the check the big robot gets impossible tasks across the gate.
+    let off = EnvConfig { reachable_tasks: false, ..cfg() };
+    let mut env = NavEnv::with_footprint(room.clone(), &off, 3, big);
+    let crossing = (0..200)
+        .filter(|_| {
+            env.reset();
+            env.start().x.signum() != env.goal()[0].signum()
+        })
+        .count();
+    assert!(crossing > 20, "{crossing}");
+    // The meta robot passes the gap: its tasks cross.
+    let mut env = NavEnv::new(room, &cfg(), 3);
+    let crossing = (0..200)
+        .filter(|_| {
+            env.reset();
+            env.start().x.signum() != env.goal()[0].signum()
+        })
+        .count();
+    assert!(crossing > 20, "{crossing}");
+}
+
+#[test]
+fn distance_and_path_ratio_bounds_hold() {
+    let room = split_room();
+    let cfg = EnvConfig {
+        min_start_goal_distance: 2.0,
+        max_start_goal_distance: 3.0,
+        max_path_ratio: 1.2,
+        ..cfg()
+    };
+    let mut env = NavEnv::new(room.clone(), &cfg, 9);
+    let reach = room.reach(0.2);
+    for _ in 0..100 {
+        env.reset();
+        let (s, g) = (env.start().position(), env.goal());
+        let d = (s[0] - g[0]).hypot(s[1] - g[1]);
+        assert!((2.0..=3.0).contains(&d), "{d}");
+        let path = reach.path_length(s, g, cfg.spawn_clearance).unwrap();
+        assert!(path <= 1.2 * d, "{path} vs {d}");
+    }
+}
+
+#[test]
+fn reachability_changes_no_task_in_an_open_room() {
+    // Every pair in an open room is reachable: the check draws nothing extra, so the seeded
+    // episodes are those of a run without it.
+    let room = Room::builtin("env3").unwrap();
+    let off = EnvConfig { reachable_tasks: false, ..cfg() };
+    let mut a = NavEnv::new(room.clone(), &cfg(), 11);
+    let mut b = NavEnv::new(room, &off, 11);
+    for _ in 0..100 {
+        a.reset();
+        b.reset();
+        assert_eq!((a.start(), a.goal()), (b.start(), b.goal()));
+    }
+}
+
+fn robust(r: crate::RobustnessConfig) -> EnvConfig {
+    EnvConfig { robustness: r, ..cfg() }
+}
+
+#[test]
+fn beam_dropout_blanks_the_share_of_beams_it_says() {
+    let room = Room::builtin("env0").unwrap();
+    let r = crate::RobustnessConfig { beam_dropout: 0.3, ..Default::default() };
+    let mut clean = NavEnv::new(room.clone(), &cfg(), 5);
+    let mut noisy = NavEnv::new(room, &robust(r), 5);
+    let (mut dropped, mut zeros, mut total) = (0, 0, 0);
+    for _ in 0..20 {
+        clean.reset();
+        noisy.reset();
+        // Robustness never changes the task.
+        assert_eq!((clean.start(), clean.goal()), (noisy.start(), noisy.goal()));
+        for (c, n) in clean.scan().iter().zip(noisy.scan()) {
+            total += 1;
+            if c != n {
+                dropped += 1;
+                assert!(*n == 0.0 || *n == 10.0, "{n}");
+                zeros += (*n == 0.0) as usize;
+            }
+        }
+    }
+    let share = dropped as f64 / total as f64;
+    // Beams already reading range_max can drop to range_max unseen: a bit under 0.3.
+    assert!((0.2..0.33).contains(&share), "{share}");
+    assert!((zeros as f64 / dropped as f64 - 0.5).abs() < 0.1, "{zeros} of {dropped}");
+}
+
+#[test]
+fn latency_shows_the_observation_of_k_steps_ago() {
+    let room = Room::builtin("env0").unwrap();
+    let r = crate::RobustnessConfig { latency_steps: 2, ..Default::default() };
+    let mut clean = NavEnv::new(room.clone(), &cfg(), 8);
+    let mut late = NavEnv::new(room, &robust(r), 8);
+    let d = clean.obs_dim();
+    let mut past: Vec<Vec<f32>> = Vec::new();
+    for t in 0..6 {
+        let mut c = vec![0.0; d];
+        let mut l = vec![0.0; d];
+        clean.write_obs(&mut c);
+        late.write_obs(&mut l);
+        past.push(c);
+        let want = &past[t.max(2) - 2];
+        assert_eq!(&l, want, "step {t}");
+        clean.step(0.3, 0.4);
+        late.step(0.3, 0.4);
+        assert_eq!(clean.pose(), late.pose(), "latency delays what is seen, not the motion");
+    }
+}
+
+#[test]
+fn actuation_noise_moves_the_robot_off_the_command_and_jitter_stretches_steps() {
+    let room = empty_room(8.0);
+    let a = crate::RobustnessConfig { actuation_noise_std: [0.05, 0.2], ..Default::default() };
+    let mut clean = NavEnv::new(room.clone(), &cfg(), 2);
+    let mut noisy = NavEnv::new(room.clone(), &robust(a), 2);
+    clean.reset_to(Pose2::new(-3.0, 0.0, 0.0), [3.0, 0.0]);
+    noisy.reset_to(Pose2::new(-3.0, 0.0, 0.0), [3.0, 0.0]);
+    for _ in 0..5 {
+        clean.step(0.3, 0.0);
+        noisy.step(0.3, 0.0);
+    }
+    assert_eq!(clean.pose().y, 0.0);
+    assert!(noisy.pose().y.abs() > 1e-4, "{:?}", noisy.pose());
+    // The command seen in the observation is what the policy asked for.
+    assert_eq!(noisy.velocity(), (0.3, 0.0));
+
+    let j = crate::RobustnessConfig { dt_jitter: 0.2, ..Default::default() };
+    let mut env = NavEnv::new(room, &robust(j), 3);
+    env.reset_to(Pose2::new(-3.0, 0.0, 0.0), [3.0, 0.0]);
+    let mut lengths = Vec::new();
+    for _ in 0..20 {
+        let x = env.pose().x;
+        env.step(0.5, 0.0);
+        lengths.push(env.pose().x - x);
+    }
+    assert!(lengths.iter().all(|&l| (0.08 - 1e-9..=0.12 + 1e-9).contains(&l)), "{lengths:?}");
+    let spread =
+        lengths.iter().cloned().fold(0.0, f64::max) - lengths.iter().cloned().fold(1.0, f64::min);
+    assert!(spread > 0.02, "{lengths:?}");
+}
+
+#[test]
+fn randomized_robustness_draws_each_episode_anew() {
+    let r = crate::RobustnessConfig {
+        randomize: Some(crate::RandomizeConfig {
+            noise_std: [0.0, 0.03],
+            latency_steps: [0, 1],
+            ..Default::default()
+        }),
+        ..Default::default()
+    };
+    let mut env = NavEnv::new(Room::builtin("env0").unwrap(), &robust(r), 4);
+    let mut sigmas = Vec::new();
+    let mut latencies = [0; 2];
+    for _ in 0..40 {
+        env.reset();
+        let p = env.perturbation();
+        assert!((0.0..=0.03).contains(&p.noise_std));
+        sigmas.push(p.noise_std);
+        latencies[p.latency_steps as usize] += 1;
+    }
+    sigmas.dedup();
+    assert!(sigmas.len() > 30);
+    assert!(latencies[0] > 5 && latencies[1] > 5, "{latencies:?}");
+}
+
+#[test]
+fn the_omega_change_penalty_charges_each_change_of_the_angular_command() {
+    let room = empty_room(8.0);
+    let mut cfg = cfg();
+    let run = |cfg: &EnvConfig| {
+        let mut env = NavEnv::new(room.clone(), cfg, 1);
+        env.reset_to(Pose2::new(-3.0, 0.0, 0.0), [3.0, 0.0]);
+        [0.5, -0.5, -0.5].map(|w| env.step(0.2, w).reward as f64)
+    };
+    let plain = run(&cfg);
+    cfg.reward.omega_change = 0.1;
+    let smooth = run(&cfg);
+    // First step free, then |Δω| = 1.0 and 0.
+    assert_eq!(smooth[0], plain[0]);
+    assert!((plain[1] - smooth[1] - 0.1).abs() < 1e-6, "{plain:?} {smooth:?}");
+    assert_eq!(smooth[2], plain[2]);
+}

@@ -1,0 +1,101 @@
+use super::*;
+use crate::spec::{RoomSpec, WallSegment};
+
+/// A room of side 6 split at x = 0 by a wall with a gap of `gap` m centred at y = 0.
+fn split_room(gap: f64) -> RoomSpec {
+    let mut spec = RoomSpec::empty("split", 6.0);
+    let t = Some(0.1);
+    spec.wall_segments = vec![
+        WallSegment { from: [0.0, 3.0], to: [0.0, gap / 2.0], thickness: t },
+        WallSegment { from: [0.0, -gap / 2.0], to: [0.0, -3.0], thickness: t },
+    ];
+    spec
+}
+
+#[test]
+fn distance_transform_matches_brute_force() {
+    let n = 23;
+    let occupied: Vec<bool> = (0..n * n).map(|k| (k * 7919 + k / 3) % 31 == 0).collect();
+    let fast = distance_transform(&occupied, n);
+    for (c, &d) in fast.iter().enumerate() {
+        let (i, j) = ((c % n) as f64, (c / n) as f64);
+        let brute = (0..n * n)
+            .filter(|&o| occupied[o])
+            .map(|o| {
+                let (a, b) = ((o % n) as f64, (o / n) as f64);
+                (a - i).powi(2) + (b - j).powi(2)
+            })
+            .fold(f64::INFINITY, f64::min);
+        assert_eq!(d, brute, "cell {c}");
+    }
+    assert!(distance_transform(&[false; 9], 3).iter().all(|d| d.is_infinite()));
+}
+
+#[test]
+fn distance_to_convex_shapes() {
+    let b = ObstacleSpec::Box { center: [0.0, 0.0], half_extents: [1.0, 0.5], angle: 0.0 };
+    assert_eq!(distance_to_convex(&b, [0.2, 0.1]), 0.0);
+    assert!((distance_to_convex(&b, [2.0, 0.0]) - 1.0).abs() < 1e-12);
+    assert!((distance_to_convex(&b, [2.0, 1.5]) - 2f64.sqrt()).abs() < 1e-12);
+    let c = ObstacleSpec::Circle { center: [1.0, 1.0], radius: 0.5 };
+    assert!((distance_to_convex(&c, [1.0, 3.0]) - 1.5).abs() < 1e-12);
+}
+
+#[test]
+fn an_empty_room_is_one_component_and_paths_are_near_straight() {
+    let map = ClearanceMap::of_room(&RoomSpec::empty("e", 5.0));
+    let reach = map.reach(0.2);
+    assert_eq!(reach.component_count(), 1);
+    let (a, b): ([f64; 2], [f64; 2]) = ([-1.5, -1.0], [1.5, 1.2]);
+    let straight = (a[0] - b[0]).hypot(a[1] - b[1]);
+    let path = reach.path_length(a, b, 0.1).unwrap();
+    assert!(path >= straight - 1e-9 && path < straight * 1.09, "{path} vs {straight}");
+}
+
+#[test]
+fn a_gap_connects_the_small_robot_and_splits_the_room_for_the_big_one() {
+    let map = ClearanceMap::of_room(&split_room(1.0));
+    let (left, right) = ([-1.5, 1.0], [1.5, 1.0]);
+    let small = map.reach(0.2);
+    assert_eq!(small.component_count(), 1);
+    assert!(small.connected(left, right, 0.1));
+    let path = small.path_length(left, right, 0.1).unwrap();
+    // Through the gap at (0, 0): two legs of √(1.5² + 1²).
+    assert!(
+        path > 2.0 * f64::hypot(1.5, 1.0) - 0.05 && path < 2.0 * f64::hypot(1.5, 1.0) * 1.09,
+        "{path}"
+    );
+    // The gap is 1.0 m minus the wall's rounded ends: a 0.5 m disc cannot pass.
+    let big = map.reach(0.5);
+    assert_eq!(big.component_count(), 2);
+    assert!(!big.connected(left, right, 0.1));
+    assert_eq!(big.path_length(left, right, 0.1), None);
+    assert!(big.connected(left, [-1.0, -2.0], 0.1));
+}
+
+#[test]
+fn passable_cells_keep_their_radius_clear_of_the_exact_geometry() {
+    let spec = split_room(0.9);
+    let room = crate::Room::new(spec.clone());
+    let map = ClearanceMap::of_room(&spec);
+    let reach = map.reach(0.3);
+    let r = reach.raster();
+    let mut passable = 0;
+    for j in 0..r.n {
+        for i in 0..r.n {
+            if reach.label[r.index(i, j)] != 0 {
+                passable += 1;
+                let c = r.centre(i, j);
+                assert!(room.clearance(c, 1.0) >= 0.3 + r.half_diagonal() - 1e-6, "{c:?}");
+            }
+        }
+    }
+    assert!(passable > 1000);
+}
+
+#[test]
+fn a_point_off_the_raster_or_in_a_wall_joins_nothing() {
+    let reach = ClearanceMap::of_room(&split_room(1.0)).reach(0.2);
+    assert_eq!(reach.component_at([10.0, 0.0], 0.1), None);
+    assert_eq!(reach.component_at([0.0, 2.0], 0.1), None);
+}
