@@ -1,7 +1,7 @@
 # dvnav — common tasks. `make test` is what CI runs (.ci/run).
 CARGO ?= cargo
 
-.PHONY: all build release test test-learning check-mcap check-deploy test-multihost test-ros2 python test-python bench-peers lint fmt bench torch-venv train clean
+.PHONY: all build release test test-learning check-mcap check-deploy test-multihost test-ros2 python test-python bench-peers lint fmt bench torch-venv train heldout clean
 
 all: build
 
@@ -153,6 +153,13 @@ bench: release
 # Python with PyTorch for the comparison in `make bench` (optional, ~3 GB download).
 torch-venv:
 	python3 -m venv .venv && .venv/bin/pip install torch numpy
+
+# The held-out suite (issue 14): generated rooms at seeds 9000+ of every kind and the real-building
+# maps in maps/, at R = 0.2-0.6 m (DVST), clean and noisy (scripts/heldout_suite.py). ~6 min on
+# 2 cores with the defaults below. HELDOUT_ARGS="--checkpoint runs/x/checkpoints/ckpt-N" for another agent.
+HELDOUT_ARGS ?= --checkpoint models/meta-r0.2 --episodes 20 --map-episodes 50
+heldout: release
+	$(PYTHON) scripts/heldout_suite.py --dvnav ./target/release/dvnav $(HELDOUT_ARGS) --out runs/heldout/suite.json
 
 # Train with the default config: a learner plus 2 actors on this machine.
 train: release

@@ -125,3 +125,50 @@ fn the_sac_ri_baseline_fails_beyond_its_training_range_and_detours_small_robots(
         reached(&rows)
     );
 }
+
+/// A small sample of the held-out suite of docs/results.md (§ Rooms anywhere): generated
+/// rooms at held-out seeds and a real building's map, as the shipped agent drives them.
+#[test]
+fn held_out_sample_as_documented() {
+    // The paper's layout at held-out seeds: 40 of 40 documented, reversal rate 0.9-3.1 %.
+    let rows = eval(&[
+        "--scenario",
+        "generated",
+        "--kind",
+        "paper",
+        "--seeds",
+        "9000:9004",
+        "--radii",
+        "0.2",
+        "--episodes",
+        "10",
+    ]);
+    assert_eq!(rows.len(), 4);
+    let ok: f64 = rows.iter().map(|r| r["success_rate"].as_f64().unwrap()).sum::<f64>() / 4.0;
+    assert!(ok >= 0.9, "{rows:?}");
+    for r in &rows {
+        assert!(r["reversal_rate"].as_f64().unwrap() < 0.08, "{r}");
+    }
+    // The command: documented 89 / 77 / 56 % at R = 0.2 / 0.4 / 0.6 m.
+    let root = env!("CARGO_MANIFEST_DIR");
+    let rows = eval(&["--room", "generated:corridors:9001", "--radii", "0.2:0.6:0.2"]);
+    let floors = [0.79, 0.67, 0.46];
+    for (r, floor) in rows.iter().zip(floors) {
+        assert!(r["success_rate"].as_f64().unwrap() >= floor, "{r}");
+    }
+    // Willow Garage, local tasks, the meta robot (the suite: 96.4 % over five maps).
+    let willow = format!("{root}/maps/willow.yaml");
+    let rows = eval(&[
+        "--room",
+        &willow,
+        "--episodes",
+        "40",
+        "--min-distance",
+        "2",
+        "--max-distance",
+        "5",
+        "--max-path-ratio",
+        "1.5",
+    ]);
+    assert!(rows[0]["success_rate"].as_f64().unwrap() >= 0.85, "{}", rows[0]);
+}
