@@ -1,7 +1,7 @@
 # dvnav — common tasks. `make test` is what CI runs (.ci/run).
 CARGO ?= cargo
 
-.PHONY: all build release test test-learning check-mcap check-deploy test-multihost test-ros2 python test-python bench-peers lint fmt bench torch-venv train heldout clean
+.PHONY: all build release test test-learning check-mcap check-deploy test-multihost test-ros2 python test-python bench-peers lint fmt bench torch-venv train heldout cuda-toolkit build-cuda gpu-bin gpu-check clean
 
 all: build
 
@@ -160,6 +160,36 @@ torch-venv:
 HELDOUT_ARGS ?= --checkpoint models/meta-r0.2 --episodes 20 --map-episodes 50
 heldout: release
 	$(PYTHON) scripts/heldout_suite.py --dvnav ./target/release/dvnav $(HELDOUT_ARGS) --out runs/heldout/suite.json
+
+# The CUDA toolkit that the `cuda` feature builds with: CUDA 13.0's nvcc, headers, cuBLAS,
+# cuRAND, NVRTC and runtime from PyPI into .venv-cuda/ (~700 MB download once), and a stub
+# libcuda to link against (scripts/cuda_toolkit.sh). No GPU, driver or system CUDA needed. By
+# hand: `eval "$$(scripts/cuda_toolkit.sh)"`.
+cuda-toolkit:
+	scripts/cuda_toolkit.sh >/dev/null
+
+# dvnav with the learner on an NVIDIA GPU (`--device cuda`), built against that toolkit into
+# target/cuda/ (target/release/ stays the CPU build). It links on a machine without a GPU and
+# runs where an NVIDIA driver >= 580 (CUDA 13.0) is. CUDA_COMPUTE_CAP: nvidia-smi's, else 80.
+# Then `--version` with the stub driver: the binary links and starts.
+CUDA_TARGET := target/cuda
+build-cuda:
+	@set -e; exports=$$(scripts/cuda_toolkit.sh); eval "$$exports"; \
+	$(CARGO) build --release --features cuda --target-dir $(CUDA_TARGET) --bin dvnav; \
+	LD_LIBRARY_PATH="$$CUDA_ROOT/lib/stubs:$$LD_LIBRARY_PATH" ./$(CUDA_TARGET)/release/dvnav --version
+
+# For a GPU machine with no Rust or no network (the `device` tool's): the CUDA build, stripped,
+# in target/gpu/dvnav, to carry there and run as `bash scripts/gpu_check.sh --bin target/gpu/dvnav`.
+gpu-bin: build-cuda
+	mkdir -p target/gpu
+	strip -o target/gpu/dvnav $(CUDA_TARGET)/release/dvnav
+
+# On a machine with an NVIDIA GPU (scripts/gpu_check.sh): the CUDA build (or
+# GPU_CHECK_ARGS="--bin PATH"), `dvnav bench learner --device cuda --json` at batch 256 and 128,
+# `dvnav train --device cuda --stop-when-skilled` for up to 5 minutes, and the figures in
+# ${OUT:-runs/gpu-check}/.
+gpu-check:
+	bash scripts/gpu_check.sh $(GPU_CHECK_ARGS)
 
 # Train with the default config: a learner plus 2 actors on this machine.
 train: release

@@ -21,8 +21,9 @@ pub fn parse(spec: &str) -> anyhow::Result<Device> {
     };
     if !cfg!(feature = "cuda") {
         anyhow::bail!(
-            "--device {spec}: this dvnav was built without CUDA; rebuild with \
-             `cargo build --release --features cuda` (needs the CUDA toolkit) or use --device cpu"
+            "--device {spec}: this dvnav was built without CUDA; build one with `make build-cuda` \
+             (CUDA 13.0 from PyPI, into target/cuda/release/dvnav), or with your own toolkit \
+             `cargo build --release --features cuda`; or use --device cpu"
         );
     }
     Device::new_cuda(ordinal).map_err(|e| anyhow::anyhow!("--device {spec}: {e}"))

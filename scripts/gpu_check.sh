@@ -1,0 +1,182 @@
+#!/usr/bin/env bash
+# `make gpu-check`: the learner on an NVIDIA GPU, measured. On a machine with a GPU:
+#   1. the GPU (nvidia-smi: name, driver, compute capability);
+#   2. a dvnav built with `--features cuda`: `--bin PATH` (or $DVNAV_CUDA_BIN) uses one built
+#      elsewhere (a GPU machine with no Rust or no network: `make gpu-bin` on any machine
+#      writes a stripped one to target/gpu/dvnav; bring that along); otherwise it is built
+#      here with the toolkit from scripts/cuda_toolkit.sh (PyPI), CUDA_COMPUTE_CAP from
+#      nvidia-smi, into target/cuda/ (from scratch: a few minutes on 16 cores, counted in the
+#      budget below);
+#   3. `dvnav bench learner --device cuda --json` at batch 256 and 128;
+#   4. `dvnav train --device cuda --stop-when-skilled` for at most TRAIN_SECONDS (300 s), fewer
+#      when the build ate into the budget;
+#   5. the figures in $OUT (default runs/gpu-check): summary.json (the headline numbers),
+#      bench.jsonl, train.log, eval.csv, metrics.csv, run_summary.json, system.txt, build.log.
+#      At most 8 files, flat, so that all of them come back from a borrowed machine.
+#
+# The whole script stays inside GPU_CHECK_BUDGET_S (510 s) so that it fits one 9-minute call.
+# Env: OUT, DVNAV_CUDA_BIN, TRAIN_SECONDS (300), BENCH_UPDATES (500), ACTORS (16 cores: 6),
+# GPU_CHECK_RUN (the training run's directory, default runs/gpu-check/train),
+# GPU_CHECK_BUDGET_S (510).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+repo=$(pwd)
+start=$(date +%s)
+elapsed() { echo $(($(date +%s) - start)); }
+say() { echo "gpu-check [$(elapsed) s]: $*" >&2; }
+die() {
+    say "FAILED: $*"
+    exit 1
+}
+
+bin=${DVNAV_CUDA_BIN:-}
+while [ $# -gt 0 ]; do
+    case $1 in
+        --bin) bin=${2:?--bin needs a path}; shift 2 ;;
+        -h | --help) sed -n '2,/^set -euo/p' "$0" | sed '$d'; exit 0 ;;
+        *) die "unknown argument $1 (try --help)" ;;
+    esac
+done
+
+out=${OUT:-runs/gpu-check}
+run_dir=${GPU_CHECK_RUN:-runs/gpu-check/train}
+budget=${GPU_CHECK_BUDGET_S:-510}
+train_max=${TRAIN_SECONDS:-300}
+updates=${BENCH_UPDATES:-500}
+cores=$(nproc)
+actors=${ACTORS:-$(((cores - 4) / 2))}
+[ "$actors" -ge 1 ] || actors=1
+mkdir -p "$out"
+sys="$out/system.txt"
+: >"$sys"
+
+# 1. The GPU.
+command -v nvidia-smi >/dev/null 2>&1 || die "no nvidia-smi: this is not a machine with an NVIDIA GPU and driver"
+nvidia-smi >>"$sys" 2>&1 || die "nvidia-smi failed: $(tail -n 3 "$sys")"
+gpu=$(nvidia-smi --query-gpu=name,driver_version,compute_cap,memory.total --format=csv,noheader | head -n 1)
+cap=$(nvidia-smi --query-gpu=compute_cap --format=csv,noheader | head -n 1 | tr -d ' .')
+say "GPU: $gpu (CUDA_COMPUTE_CAP=$cap), $cores cores, $actors actors"
+
+# 2. The binary.
+build_s=null
+if [ -z "$bin" ]; then
+    command -v cargo >/dev/null 2>&1 \
+        || die "no cargo here and no --bin: build one elsewhere with \`make gpu-bin\` and run this with --bin target/gpu/dvnav"
+    export CUDA_COMPUTE_CAP=${CUDA_COMPUTE_CAP:-$cap}
+    exports=$(scripts/cuda_toolkit.sh) || die "scripts/cuda_toolkit.sh failed"
+    eval "$exports"
+    say "cargo build --release --features cuda (target/cuda)"
+    b0=$(date +%s)
+    cargo build --release --features cuda --target-dir target/cuda --bin dvnav >"$out/build.log" 2>&1 \
+        || die "the CUDA build failed; the end of $out/build.log:
+$(tail -n 40 "$out/build.log")"
+    build_s=$(($(date +%s) - b0))
+    bin=target/cuda/release/dvnav
+    say "built in $build_s s"
+fi
+[ -x "$bin" ] || die "$bin is not an executable"
+case $bin in /*) ;; *) bin="$repo/$bin" ;; esac
+
+# Its CUDA libraries: where this machine has them, when the loader does not find them itself.
+add_lib_dirs() {
+    local site
+    site=$(python3 -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])' 2>/dev/null) || site=
+    for d in ${CUDA_ROOT:+"$CUDA_ROOT/lib"} /usr/local/cuda/lib64 /usr/local/cuda/targets/x86_64-linux/lib \
+        ${site:+"$site/nvidia/cu13/lib"} /usr/local/nvidia/lib64 /usr/local/nvidia/lib; do
+        [ -d "$d" ] && LD_LIBRARY_PATH="${LD_LIBRARY_PATH:+$LD_LIBRARY_PATH:}$d"
+    done
+    export LD_LIBRARY_PATH
+}
+if ldd "$bin" 2>&1 | grep 'not found' >/dev/null; then
+    add_lib_dirs
+fi
+{
+    echo "== binary: $bin"
+    echo "LD_LIBRARY_PATH=${LD_LIBRARY_PATH:-}"
+    ldd "$bin" || true
+} >>"$sys" 2>&1
+ldd "$bin" 2>&1 | grep 'not found' && die "libraries missing for $bin (above; see $sys)"
+"$bin" --version >>"$sys" 2>&1 || die "$bin does not start: $(tail -n 3 "$sys")"
+
+# 3. SAC updates/s on the GPU.
+: >"$out/bench.jsonl"
+for batch in 256 128; do
+    say "bench learner --device cuda --batch $batch --updates $updates"
+    "$bin" bench learner --device cuda --batch "$batch" --updates "$updates" --json \
+        >>"$out/bench.jsonl" 2>>"$sys" || die "bench learner --batch $batch failed: $(tail -n 5 "$sys")"
+    tail -n 1 "$out/bench.jsonl" >&2
+done
+
+# 4. Training on the GPU, inside what is left of the budget (45 s kept for the shutdown).
+left=$((budget - $(elapsed) - 45))
+train_s=$((left < train_max ? left : train_max))
+train_rc=skipped
+if [ "$train_s" -lt 60 ]; then
+    say "only $left s left of the $budget s budget: training skipped"
+else
+    rm -rf "$run_dir"
+    mkdir -p "$(dirname "$run_dir")"
+    say "train --device cuda --actors $actors --stop-when-skilled, at most $train_s s"
+    set +e
+    # SIGTERM: dvnav train stops its learner and actors cleanly and writes run_summary.json.
+    timeout --signal=TERM --kill-after=40 "$train_s" \
+        "$bin" train --device cuda --actors "$actors" --stop-when-skilled --progress-every-s 10 \
+        --out "$run_dir" >"$out/train.log" 2>&1
+    train_rc=$?
+    set -e
+    say "train exited with $train_rc (124: stopped at $train_s s)"
+    for f in eval.csv metrics.csv run_summary.json; do
+        [ -f "$run_dir/$f" ] && cp "$run_dir/$f" "$out/$f"
+    done
+    [ -f "$run_dir/logs/learner.log" ] && { echo "== learner.log (end)"; tail -n 40 "$run_dir/logs/learner.log"; } >>"$sys"
+fi
+
+# 5. The headline figures.
+command -v python3 >/dev/null 2>&1 || die "no python3 for summary.json; the raw figures are in $out/"
+python3 - "$out" "$gpu" "$build_s" "$train_s" "$train_rc" "$actors" "$(elapsed)" <<'EOF'
+import json, os, sys
+out, gpu, build_s, train_s, train_rc, actors, total_s = sys.argv[1:]
+def load(p):
+    try:
+        with open(os.path.join(out, p)) as f:
+            return json.load(f)
+    except (OSError, ValueError):
+        return None
+bench = {}
+try:
+    for line in open(os.path.join(out, "bench.jsonl")):
+        if line.strip():
+            r = json.loads(line)
+            bench[str(r["batch"])] = r
+except (OSError, ValueError):
+    pass
+run = load("run_summary.json") or {}
+skilled = run.get("skilled")
+s = {
+    "gpu": gpu,
+    "build_s": None if build_s == "null" else int(build_s),
+    "sac_updates_per_s": {b: r.get("sac_updates_per_s") for b, r in bench.items()},
+    "inference_ms_batch1": {b: r.get("inference_ms_batch1") for b, r in bench.items()},
+    "train": {
+        "actors": int(actors),
+        "limit_s": int(train_s),
+        "exit": train_rc,
+        "wall_time_s": run.get("wall_time_s"),
+        "stage": run.get("stage"),
+        "skilled": skilled,
+        # --stop-when-skilled ends the run when the last room is mastered: its wall time is the
+        # time to skill.
+        "time_to_skill_s": run.get("wall_time_s") if skilled else None,
+        "env_steps_per_s": run.get("env_steps_per_s"),
+        "updates_per_s": run.get("updates_per_s"),
+        "updates": run.get("updates"),
+        "success_rate": run.get("success_rate"),
+        "clean_shutdown": run.get("clean_shutdown"),
+    },
+    "total_s": int(total_s),
+}
+with open(os.path.join(out, "summary.json"), "w") as f:
+    json.dump(s, f, indent=2)
+print(json.dumps(s, indent=2))
+EOF
+say "done; figures in $out/"
