@@ -152,6 +152,7 @@ fn held_out_sample_as_documented() {
     // The command: documented 89 / 77 / 56 % at R = 0.2 / 0.4 / 0.6 m.
     let root = env!("CARGO_MANIFEST_DIR");
     let rows = eval(&["--room", "generated:corridors:9001", "--radii", "0.2:0.6:0.2"]);
+    assert_eq!(rows.len(), 3, "one row per radius: {rows:?}");
     let floors = [0.79, 0.67, 0.46];
     for (r, floor) in rows.iter().zip(floors) {
         assert!(r["success_rate"].as_f64().unwrap() >= floor, "{r}");
