@@ -19,7 +19,7 @@ pub struct LearnerBench {
     pub ms_per_update: f64,
     /// Minibatch size.
     pub batch: usize,
-    /// Threads candle may use.
+    /// Learner threads the update was spread over.
     pub threads: usize,
     /// Device name.
     pub device: String,
@@ -50,10 +50,12 @@ fn random_replay(cfg: &Config, n: usize, rng: &mut impl Rng) -> ReplayBuffer {
     replay
 }
 
-/// Times `updates` SAC updates at `batch` after `warmup` untimed ones.
+/// Times `updates` SAC updates at `batch` on `threads` learner threads (0: one per core; see
+/// [`SacLearner::with_threads`]) after `warmup` untimed ones.
 pub fn sac_updates(
     cfg: &Config,
     batch: usize,
+    threads: usize,
     warmup: usize,
     updates: usize,
     dev: &Device,
@@ -62,7 +64,8 @@ pub fn sac_updates(
     let mut rng = rand_pcg::Pcg64::seed_from_u64(0);
     let replay = random_replay(cfg, 4 * batch, &mut rng);
     let nets = SacNetworks::new(cfg, 0, &dev)?;
-    let mut learner = SacLearner::new(nets, cfg.sac.clone(), dev.clone(), 0)?;
+    let mut learner =
+        SacLearner::new(nets, cfg.sac.clone(), dev.clone(), 0)?.with_threads(threads)?;
     let mut b = Batch::default();
     for _ in 0..warmup {
         replay.sample_into(batch, &mut rng, &mut b);
@@ -94,10 +97,7 @@ pub fn sac_updates(
         sac_updates_per_s: updates as f64 / secs,
         ms_per_update: secs * 1e3 / updates as f64,
         batch,
-        threads: std::env::var("CANDLE_NUM_THREADS")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or_else(candle_core::utils::get_num_threads),
+        threads: learner.threads(),
         device: crate::device::name(&dev),
         network: format!(
             "conv({}x{}/{})-conv({}x{}/{})-fc{}-fc{}x2",

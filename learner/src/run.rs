@@ -96,7 +96,9 @@ pub async fn run(
     let device = opts.device.clone();
     tracing::info!(device = %crate::device::name(&device), "learner device");
     let nets = SacNetworks::new(&cfg, cfg.run.seed, &device)?;
-    let mut learner = SacLearner::new(nets, cfg.sac.clone(), device, cfg.run.seed ^ 0x0005_ac00)?;
+    let mut learner = SacLearner::new(nets, cfg.sac.clone(), device, cfg.run.seed ^ 0x0005_ac00)?
+        .with_threads(cfg.learner.threads)?;
+    tracing::info!(threads = learner.threads(), "learner threads");
     let mut sample_rng = trainer::sample_rng(cfg.run.seed);
     let state = Arc::new(
         LearnerState::new(cfg.clone(), run_id, opts.token.clone(), learner.policy_safetensors()?)

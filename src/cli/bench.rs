@@ -64,7 +64,8 @@ enum BenchWhat {
         /// Updates timed.
         #[arg(long, default_value_t = 20)]
         updates: usize,
-        /// candle CPU threads (default: the config's `learner.threads`).
+        /// Learner threads, each taking a share of the minibatch (default: the config's
+        /// `learner.threads`; 0: one per core). PyTorch with --torch gets the same number.
         #[arg(long)]
         threads: Option<usize>,
         /// `cpu`, or `cuda` / `cuda:N` (a build with `--features cuda`).
@@ -196,20 +197,22 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
         }
         BenchWhat::Learner { config, batch, updates, threads, device, torch, rounds, json } => {
             let cfg = super::load_config(config.as_ref())?;
-            let threads = threads.unwrap_or(cfg.learner.threads).max(1);
-            // candle sizes its pool from this on first use, which comes after this point; no
-            // other thread runs yet.
-            unsafe { std::env::set_var("CANDLE_NUM_THREADS", threads.to_string()) };
+            let threads = match threads.unwrap_or(cfg.learner.threads) {
+                0 => std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
+                n => n,
+            };
+            super::candle_single_threaded();
             let dev = dvnav_learner::device::parse(&device)?;
-            let mut r = dvnav_learner::bench::sac_updates(&cfg, batch, 3, updates, &dev)?;
+            let mut r = dvnav_learner::bench::sac_updates(&cfg, batch, threads, 3, updates, &dev)?;
             let mut torch_rate = None;
             if torch {
                 // Alternate the two so that both see the same machine; medians of each.
                 let (mut ours, mut theirs) = (vec![r.sac_updates_per_s], Vec::new());
                 for round in 0..rounds.max(1) {
                     if round > 0 {
-                        let again =
-                            dvnav_learner::bench::sac_updates(&cfg, batch, 1, updates, &dev)?;
+                        let again = dvnav_learner::bench::sac_updates(
+                            &cfg, batch, threads, 1, updates, &dev,
+                        )?;
                         ours.push(again.sac_updates_per_s);
                     }
                     match torch_figure(batch, threads, updates) {

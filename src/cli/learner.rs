@@ -75,11 +75,8 @@ pub fn run(mut args: LearnerArgs) -> anyhow::Result<ExitCode> {
         cfg.run.steps = s;
     }
     cfg.validate()?;
-    if cfg.learner.threads > 0 {
-        // candle sizes its CPU thread pool from this variable when the pool is first used,
-        // which is after this point; nothing else runs yet, so setting it is sound.
-        unsafe { std::env::set_var("CANDLE_NUM_THREADS", cfg.learner.threads.to_string()) };
-    }
+    // The learner's threads are its own (`learner.threads`, SacLearner::with_threads).
+    super::candle_single_threaded();
     let token = super::read_token(args.token_file.as_deref())?;
     let actor_tokens = args
         .actor_tokens

@@ -184,6 +184,19 @@ pub fn load_config(path: Option<&PathBuf>) -> anyhow::Result<dvnav_config::Confi
     }
 }
 
+/// Keeps candle's own CPU parallelism (its element-wise thread pool, sized from
+/// `CANDLE_NUM_THREADS`, and gemm's rayon split, from `RAYON_NUM_THREADS`) at one thread: the
+/// learner spreads an update over threads of its own (`learner.threads`,
+/// `dvnav_learner::sac::shards`), and candle's split of every small operation only costs
+/// synchronizations. Call before anything uses candle or starts a thread.
+pub fn candle_single_threaded() {
+    // SAFETY: called at the start of a command, before any other thread exists.
+    unsafe {
+        std::env::set_var("CANDLE_NUM_THREADS", "1");
+        std::env::set_var("RAYON_NUM_THREADS", "1");
+    }
+}
+
 /// A multi-threaded tokio runtime with few workers: the heavy work runs on its own threads.
 pub fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
     Ok(tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?)

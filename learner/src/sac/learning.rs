@@ -14,6 +14,7 @@
 
 use super::networks::{GaussianPolicy, Owned, QFunction, SacNetworks};
 use super::optim::Adam;
+use super::shards::{self, Workers};
 use crate::replay::Batch;
 use candle_core::{Device, Result, Tensor, Var};
 use dvnav_config::SacConfig;
@@ -53,14 +54,22 @@ pub fn actor_loss(
     policy_weights: &[Tensor],
 ) -> Result<Tensor> {
     let sac = ((log_prob * alpha)? - q1.minimum(q2)?)?.mean_all()?;
+    match l2_penalty(policy_weights, l2_coef)? {
+        Some(l2) => sac + l2,
+        None => Ok(sac),
+    }
+}
+
+/// λ Σ‖W‖² over the policy's weight matrices; `None` when λ = 0 or there are none.
+pub fn l2_penalty(policy_weights: &[Tensor], l2_coef: f64) -> Result<Option<Tensor>> {
     if l2_coef == 0.0 || policy_weights.is_empty() {
-        return Ok(sac);
+        return Ok(None);
     }
     let mut l2 = policy_weights[0].sqr()?.sum_all()?;
     for w in &policy_weights[1..] {
         l2 = (l2 + w.sqr()?.sum_all()?)?;
     }
-    sac + (l2 * l2_coef)?
+    Ok(Some((l2 * l2_coef)?))
 }
 
 /// J(α) = mean(−α (log π + H̄)), with α = exp(log α) and log π treated as a constant.
@@ -110,6 +119,13 @@ pub struct UpdateNoise {
     pub current: Vec<f32>,
 }
 
+impl UpdateNoise {
+    /// The noise as [`shards::split`] takes it.
+    pub fn view(&self) -> shards::Noise<'_> {
+        shards::Noise { next: &self.next, current: &self.current }
+    }
+}
+
 /// The SAC learner: networks, optimizers, and the update counter. Generic over the policy and
 /// critic networks; the default is the navigation CNN pair.
 pub struct SacLearner<P = Actor, Q = Critic> {
@@ -126,13 +142,11 @@ pub struct SacLearner<P = Actor, Q = Critic> {
     updates: u64,
     last: UpdateMetrics,
     device: Device,
+    /// Worker threads an update's minibatch is shared out over ([`super::shards`]).
+    workers: Workers,
     /// Source of the policy's sampling noise, seeded, so an update depends only on the seed,
     /// the networks and the batch (candle's own CPU generator cannot be seeded).
     noise: rand_pcg::Pcg64,
-}
-
-fn tensor(data: &[f32], shape: impl Into<candle_core::Shape>, dev: &Device) -> Result<Tensor> {
-    Tensor::from_slice(data, shape, dev)
 }
 
 impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
@@ -167,8 +181,22 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
             updates: 0,
             last: UpdateMetrics::default(),
             device,
+            workers: Workers::new(1)?,
             noise: rand_pcg::Pcg64::seed_from_u64(seed),
         })
+    }
+
+    /// Spreads each update over `threads` worker threads (0: one per core) by cutting its
+    /// minibatch into shards ([`super::shards`]): the same update up to float rounding, and
+    /// deterministic for a given thread count. Candle's own CPU threads should stay at one.
+    pub fn with_threads(mut self, threads: usize) -> Result<Self> {
+        self.workers = Workers::new(threads)?;
+        Ok(self)
+    }
+
+    /// Worker threads an update is spread over.
+    pub fn threads(&self) -> usize {
+        self.workers.threads()
     }
 
     /// Updates done.
@@ -198,55 +226,64 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
         batch: &Batch,
         noise: &UpdateNoise,
     ) -> Result<UpdateMetrics> {
-        let dev = &self.device;
-        let b = batch.size;
-        let obs = tensor(&batch.obs, (b, batch.obs_dim), dev)?;
-        let next_obs = tensor(&batch.next_obs, (b, batch.obs_dim), dev)?;
-        let actions = tensor(&batch.actions, (b, self.action_dim), dev)?;
-        let rewards = tensor(&batch.rewards, b, dev)?;
-        let terminated = tensor(&batch.terminated, b, dev)?;
-        let eps_next = tensor(&noise.next, (b, self.action_dim), dev)?;
-        let eps_pi = tensor(&noise.current, (b, self.action_dim), dev)?;
+        let shards =
+            shards::split(batch, noise.view(), self.action_dim, self.shard_count(), &self.device)?;
         let alpha = self.nets.alpha();
+        let (nets, cfg) = (&self.nets, &self.cfg);
 
-        // Critics.
-        let nets = &self.nets;
-        let next = nets.actor.net.sample_with_noise(&next_obs, &eps_next)?;
-        let next_action = next.action.detach();
-        let target = soft_bellman_target(
-            &rewards,
-            &terminated,
-            &nets.target1.net.q(&next_obs, &next_action)?.detach(),
-            &nets.target2.net.q(&next_obs, &next_action)?.detach(),
-            &next.log_prob.detach(),
-            alpha,
-            self.cfg.gamma,
-        )?;
-        let q1 = nets.critic1.net.q(&obs, &actions)?;
-        let q2 = nets.critic2.net.q(&obs, &actions)?;
-        let loss_q = critic_loss(&q1, &q2, &target)?;
-        self.critic_opt.step(&loss_q.backward()?)?;
-        self.last.critic_loss = scalar(&loss_q)?;
-        self.last.q_mean = scalar(&q1.mean_all()?)?;
+        // Critics: each shard's loss is its share of L(φ1) + L(φ2) over the batch.
+        let parts = self.workers.map(&shards, |s| {
+            let next = nets.actor.net.sample_with_noise(&s.next_obs, &s.eps_next)?;
+            let next_action = next.action.detach();
+            let target = soft_bellman_target(
+                &s.rewards,
+                &s.terminated,
+                &nets.target1.net.q(&s.next_obs, &next_action)?.detach(),
+                &nets.target2.net.q(&s.next_obs, &next_action)?.detach(),
+                &next.log_prob.detach(),
+                alpha,
+                cfg.gamma,
+            )?;
+            let q1 = nets.critic1.net.q(&s.obs, &s.actions)?;
+            let q2 = nets.critic2.net.q(&s.obs, &s.actions)?;
+            let loss = share_of(critic_loss(&q1, &q2, &target)?, s.share)?;
+            Ok((loss.backward()?, scalar(&loss)?, s.share * scalar(&q1.mean_all()?)?))
+        })?;
+        let (stores, losses, q_means) = unzip3(parts);
+        self.critic_opt.step(&shards::sum_grads(stores, self.critic_opt.vars())?)?;
+        self.last.critic_loss = losses.iter().sum();
+        self.last.q_mean = q_means.iter().sum();
 
         // Policy and temperature, delayed.
         if self.updates.is_multiple_of(self.cfg.policy_delay) {
-            let pi = nets.actor.net.sample_with_noise(&obs, &eps_pi)?;
-            let q1_pi = nets.critic1.net.q_for_policy(&obs, &pi.action)?;
-            let q2_pi = nets.critic2.net.q_for_policy(&obs, &pi.action)?;
             let weights: Vec<Tensor> =
                 self.policy_weights.iter().map(|v| v.as_tensor().clone()).collect();
-            let loss_pi =
-                actor_loss(&pi.log_prob, &q1_pi, &q2_pi, alpha, self.cfg.policy_l2, &weights)?;
-            // The backward pass also reaches the critics' heads through Q(s, ã); only the
-            // policy's optimizer steps, so their gradients are dropped.
-            self.actor_opt.step(&loss_pi.backward()?)?;
-            self.last.actor_loss = scalar(&loss_pi)?;
-            self.last.entropy = -scalar(&pi.log_prob.mean_all()?)?;
+            let (nets, cfg) = (&self.nets, &self.cfg);
+            let parts = self.workers.map(&shards, |s| {
+                let pi = nets.actor.net.sample_with_noise(&s.obs, &s.eps_pi)?;
+                let q1_pi = nets.critic1.net.q_for_policy(&s.obs, &pi.action)?;
+                let q2_pi = nets.critic2.net.q_for_policy(&s.obs, &pi.action)?;
+                // The L2 term belongs to the batch, not to a shard: the first shard adds it.
+                let sac = actor_loss(&pi.log_prob, &q1_pi, &q2_pi, alpha, 0.0, &[])?;
+                let mut loss = share_of(sac, s.share)?;
+                if s.first
+                    && let Some(l2) = l2_penalty(&weights, cfg.policy_l2)?
+                {
+                    loss = (loss + l2)?;
+                }
+                // The backward pass also reaches the critics' heads through Q(s, ã); only the
+                // policy's optimizer steps, so their gradients are dropped.
+                Ok((loss.backward()?, scalar(&loss)?, pi.log_prob.detach()))
+            })?;
+            let (stores, losses, log_probs) = unzip3(parts);
+            self.actor_opt.step(&shards::sum_grads(stores, self.actor_opt.vars())?)?;
+            let log_prob = Tensor::cat(&log_probs, 0)?;
+            self.last.actor_loss = losses.iter().sum();
+            self.last.entropy = -scalar(&log_prob.mean_all()?)?;
             if self.cfg.autotune_alpha {
                 let loss_a = temperature_loss(
                     self.nets.log_alpha.as_tensor(),
-                    &pi.log_prob,
+                    &log_prob,
                     self.target_entropy,
                 )?;
                 self.alpha_opt.step(&loss_a.backward()?)?;
@@ -258,6 +295,12 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
         self.updates += 1;
         self.last.alpha = self.nets.alpha();
         Ok(self.last)
+    }
+
+    /// Shards an update is cut into: one per worker thread on a CPU, one on a GPU (a GPU
+    /// parallelizes inside each operation).
+    fn shard_count(&self) -> usize {
+        if self.device.is_cpu() { self.workers.threads() } else { 1 }
     }
 
     /// `(batch, action_dim)` standard-normal noise from the learner's seeded generator.
@@ -353,6 +396,22 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
     }
 }
 
+/// A shard's part of a batch mean: the shard's own mean times its share of the rows.
+fn share_of(mean: Tensor, share: f64) -> Result<Tensor> {
+    if share == 1.0 { Ok(mean) } else { mean * share }
+}
+
+fn unzip3<A, B, C>(v: Vec<(A, B, C)>) -> (Vec<A>, Vec<B>, Vec<C>) {
+    let mut out =
+        (Vec::with_capacity(v.len()), Vec::with_capacity(v.len()), Vec::with_capacity(v.len()));
+    for (a, b, c) in v {
+        out.0.push(a);
+        out.1.push(b);
+        out.2.push(c);
+    }
+    out
+}
+
 fn scalar(t: &Tensor) -> Result<f64> {
     Ok(t.to_dtype(candle_core::DType::F64)?.flatten_all()?.to_vec1::<f64>()?[0])
 }
@@ -404,6 +463,65 @@ mod tests {
         assert_ne!(before, after, "the policy was updated");
         assert_eq!(after, b.policy_safetensors().unwrap());
         assert_ne!(after, c.policy_safetensors().unwrap(), "other noise, other result");
+    }
+
+    #[test]
+    fn an_update_shared_out_over_threads_is_the_same_update() {
+        // 40 rows in 1, 2 or 3 shards: the same metrics and weights up to float rounding.
+        let cfg = dvnav_config::Config::default();
+        let d = cfg.obs_dim();
+        let n = 40;
+        let batch = Batch {
+            size: n,
+            obs_dim: d,
+            obs: (0..n * d).map(|i| 0.3 + ((i * 7) % 23) as f32 * 0.2).collect(),
+            actions: (0..n * 2).map(|i| (i as f32 * 0.37).sin()).collect(),
+            rewards: (0..n).map(|i| (i as f32 * 0.9).cos()).collect(),
+            next_obs: (0..n * d).map(|i| 0.4 + ((i * 5) % 19) as f32 * 0.2).collect(),
+            terminated: (0..n).map(|i| (i % 5 == 0) as u8 as f32).collect(),
+        };
+        let weights = |l: &SacLearner| -> Vec<f32> {
+            let mut all = Vec::new();
+            for (_, t) in l.state_tensors() {
+                all.extend(t.flatten_all().unwrap().to_vec1::<f32>().unwrap());
+            }
+            all
+        };
+        // A large L2 coefficient, so that a shard adding it twice or not at all shows.
+        let mut sac = cfg.sac.clone();
+        sac.policy_l2 = 0.5;
+        let run = |threads: usize| {
+            let nets = SacNetworks::new(&cfg, 3, &Device::Cpu).unwrap();
+            let l = SacLearner::new(nets, sac.clone(), Device::Cpu, 1).unwrap();
+            let mut l = l.with_threads(threads).unwrap();
+            let metrics: Vec<UpdateMetrics> = (0..4).map(|_| l.update(&batch).unwrap()).collect();
+            (metrics, weights(&l))
+        };
+        let (m1, w1) = run(1);
+        for threads in [2, 3] {
+            let (m, w) = run(threads);
+            for (a, b) in m1.iter().zip(&m) {
+                for (x, y) in [
+                    (a.critic_loss, b.critic_loss),
+                    (a.actor_loss, b.actor_loss),
+                    (a.alpha, b.alpha),
+                    (a.q_mean, b.q_mean),
+                    (a.entropy, b.entropy),
+                ] {
+                    assert!(
+                        (x - y).abs() <= 1e-4 * (1.0 + x.abs()),
+                        "{threads} threads: {a:?} vs {b:?}"
+                    );
+                }
+            }
+            assert_eq!(w.len(), w1.len());
+            let worst = w1.iter().zip(&w).map(|(x, y)| (x - y).abs()).fold(0f32, f32::max);
+            assert!(worst < 1e-4, "{threads} threads: weights differ by up to {worst}");
+            assert!(
+                w != w1 || threads == 1,
+                "float rounding differs; an identical result means one shard ran"
+            );
+        }
     }
 
     #[test]

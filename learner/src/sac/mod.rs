@@ -6,6 +6,7 @@
 pub mod learning;
 pub mod networks;
 pub mod optim;
+pub mod shards;
 
 pub use dvnav_config::SacConfig;
 pub use learning::{SacLearner, UpdateMetrics, UpdateNoise};

@@ -15,7 +15,7 @@ use dvnav_sim::obs::ACTION_DIM;
 
 /// π_θ(a|s) as a tanh-squashed diagonal Gaussian: the network gives μ and log σ, the sample
 /// is a = tanh(μ + σ·ε).
-pub trait GaussianPolicy {
+pub trait GaussianPolicy: Sync {
     /// Length of an action.
     fn action_dim(&self) -> usize;
     /// `(mean, log_std)` of the pre-squash Gaussian, each `(batch, action_dim)`.
@@ -28,7 +28,7 @@ pub trait GaussianPolicy {
 }
 
 /// A soft Q-function Q_φ(s, a) → `(batch,)`.
-pub trait QFunction {
+pub trait QFunction: Sync {
     /// Q(s, a) for a batch of observations and actions.
     fn q(&self, obs: &Tensor, action: &Tensor) -> Result<Tensor>;
     /// Q(s, a) as the policy loss uses it: the same value, and the same gradient with respect

@@ -51,6 +51,11 @@ impl Adam {
         Ok(())
     }
 
+    /// The variables it steps.
+    pub fn vars(&self) -> impl Iterator<Item = &Var> + Clone {
+        self.vars.iter().map(|(_, v)| v)
+    }
+
     /// Steps taken so far.
     pub fn steps(&self) -> u64 {
         self.step
