@@ -8,6 +8,9 @@
   and goal 2-5 m apart, a collision-free path at most 1.5x the straight line.
 - Each twice: clean, and with LiDAR noise σ = 0.02 m, 5 % beam dropout and one cycle of
   observation latency.
+- The maps again through each real sensor of sensors/ (`dvnav eval --sensor`): the scan that
+  sensor's driver would publish from where it is mounted, resampled to the meta agent's beams as
+  `dvnav serve` does (clean: the sensor's own noise only).
 
 It only runs `dvnav eval` and adds up its JSON rows, so every figure can be re-run by hand
 with the command it prints. Rates are pooled over episodes; the reversal rate and mean |Δω|
@@ -75,6 +78,7 @@ def main():
     p.add_argument("--map-radii", default="0.2,0.3,0.4")
     p.add_argument("--map-episodes", type=int, default=50)
     p.add_argument("--noise", default="clean,noisy")
+    p.add_argument("--sensors", default="sensors/*.toml", help="glob of sensor files for the maps suite ('' for none)")
     p.add_argument("--out", help="write the pooled figures as JSON here")
     a = p.parse_args()
 
@@ -92,6 +96,14 @@ def main():
                 args += ["--room", m]
             args += ["--radii", a.map_radii, "--episodes", str(a.map_episodes), *LOCAL_TASKS, *NOISE[noise]]
             suites.append({"suite": "maps", "noise": noise, "args": args, "maps": maps})
+    maps = sorted(glob.glob(a.maps))
+    for sensor in sorted(glob.glob(a.sensors)) if a.sensors and maps else []:
+        args = ["--checkpoint", a.checkpoint]
+        for m in maps:
+            args += ["--room", m]
+        args += ["--radii", a.map_radii, "--episodes", str(a.map_episodes), *LOCAL_TASKS, "--sensor", sensor]
+        name = os.path.splitext(os.path.basename(sensor))[0]
+        suites.append({"suite": f"maps via {name}", "noise": "clean", "args": args, "maps": maps})
     for s in suites:
         s["by_radius"] = pool(run_eval(a.dvnav, s["args"]))
         s["command"] = " ".join(["dvnav", "eval", *s["args"], "--json"])

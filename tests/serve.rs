@@ -185,6 +185,24 @@ async fn a_robot_drives_through_the_service_and_changes_its_footprint() {
     assert_eq!((changed.footprint.as_str(), changed.footprint_version), ("circle r=0.5", 2));
     let e = client.set_footprint(set("[[parts]]\nshape = \"hexagon\"\n".into())).await.unwrap_err();
     invalid(e.clone(), "footprint_toml");
+    // Robots no physical robot could be are refused, the key named: a part centred 1e308 m
+    // away, a box of half extents 1e308 m, a margin of 1e300 m (each once gave μ = inf or 5e300,
+    // and a robot that read `arrived` wherever its goal was).
+    for (toml, key) in [
+        ("[[parts]]\nshape = \"circle\"\ncenter = [1e308, 1e308]\nradius = 0.2\n", "parts[0]"),
+        (
+            "[[parts]]\nshape = \"box\"\ncenter = [0, 0]\nhalf_extents = [1e308, 1e308]\n",
+            "parts[0]",
+        ),
+        (
+            "margin = 1e300\n[[parts]]\nshape = \"circle\"\ncenter = [0, 0]\nradius = 0.2\n",
+            "margin",
+        ),
+    ] {
+        let e = client.set_footprint(set(toml.into())).await.unwrap_err();
+        invalid(e.clone(), "footprint_toml");
+        assert!(e.message().contains(key) && e.message().contains("20 m"), "{key}: {e:?}");
+    }
     assert!(e.message().contains("line 2: unknown variant `hexagon`"), "{e:?}");
     let got = client.act(request(3)).await.unwrap().into_inner();
     assert_eq!((got.mu, got.footprint_version), (changed.mu, 2), "{got:?}");

@@ -8,12 +8,17 @@ paper's; an episode terminates on reaching the goal or a collision and is trunca
 ``max_steps``. Rooms are every name ``dvnav`` accepts (``dvnav.room_names()``) or a room file,
 and every key of a run config's ``[env]`` section is a keyword argument (nested sections as
 dicts: ``lidar={"noise_std": 0.01}``), or ``config=`` names a run config whose ``[env]`` is used.
+``sensor=`` observes through a real robot's LiDAR: a sensor file (``sensors/*.toml``) or its
+keys as a dict; the scan is simulated at the sensor's mounting and resampled to the meta agent's
+beams as ``dvnav serve`` does.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import secrets
+import tomllib
 from typing import Any, Sequence
 
 import gymnasium
@@ -43,6 +48,13 @@ def _core_kwargs(render_mode, footprint, config, env_config) -> dict[str, Any]:
     """Checks the render mode and shapes the arguments both Rust classes take."""
     if render_mode is not None and render_mode not in ("rgb_array",):
         raise ValueError(f"render_mode {render_mode!r}: dvnav renders 'rgb_array' only")
+    sensor = env_config.get("sensor")
+    if isinstance(sensor, (str, os.PathLike)):
+        try:
+            with open(sensor, "rb") as f:
+                env_config = {**env_config, "sensor": tomllib.load(f)}
+        except (OSError, tomllib.TOMLDecodeError) as e:
+            raise ValueError(f"sensor file {os.fspath(sensor)}: {e}") from e
     return {
         "footprint": None if footprint is None else str(footprint),
         "config": None if config is None else str(config),

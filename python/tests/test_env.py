@@ -86,6 +86,27 @@ def test_every_room_name_and_env_config_key_is_accepted():
     assert cfg["lidar"]["beams"] == 90 and cfg["lidar"]["fov_deg"] == 270.0 and cfg["v_max"] == 0.8
 
 
+def test_a_sensor_file_or_dict_observes_through_that_lidar(root):
+    hokuyo = root / "sensors/hokuyo-ust10lx-front.toml"
+    env = gymnasium.make("dvnav/Nav-v0", room="env3", seed=3, sensor=str(hokuyo))
+    meta = gymnasium.make("dvnav/Nav-v0", room="env3", seed=3)
+    assert env.unwrapped.env_config["sensor"]["beams"] == 1081
+    assert env.observation_space.shape == meta.observation_space.shape, "still the meta layout"
+    obs, _ = env.reset()
+    ref, _ = meta.reset()
+    scan, truth = obs[:540], ref[:540]
+    # The same start seen through a sensor 0.1 m ahead: close to the meta scan, nothing inside
+    # the robot (0.2 m).
+    assert scan.min() >= 0.2 and np.median(np.abs(scan - truth)) < 0.05
+    env = gymnasium.make(
+        "dvnav/Nav-v0", room="env3", seed=3,
+        sensor={"beams": 360, "fov_deg": 360.0, "range_min": 0.1, "range_max": 5.0, "no_return": "zero"},
+    )
+    assert env.reset()[0][:540].max() <= 5.0
+    with pytest.raises(ValueError, match="env.sensor.fov_deg"):
+        gymnasium.make("dvnav/Nav-v0", room="env3", sensor={"beams": 10, "fov_deg": 400.0, "range_min": 0, "range_max": 5})
+
+
 def test_a_curriculum_moves_to_the_next_room_at_the_next_reset():
     env = gymnasium.make("dvnav/Nav-v0", room="env0", seed=0)
     env.reset()

@@ -108,6 +108,13 @@ pub struct EvalArgs {
     /// straight line (default: no bound).
     #[arg(long, value_name = "R")]
     pub max_path_ratio: Option<f64>,
+    /// Observe through a real robot's LiDAR: a sensor file (`sensors/*.toml`: readings, field of
+    /// view, ranges, noise, how its driver writes "no return", where it sits on the robot). The
+    /// simulator produces that sensor's LaserScan at its mounting and resamples it to the meta
+    /// agent's beams exactly as `dvnav serve` does. Default: the meta agent's own LiDAR at the
+    /// axle centre.
+    #[arg(long, value_name = "FILE")]
+    pub sensor: Option<PathBuf>,
     /// Episodes stepped at once; the policy sees them as one batch.
     #[arg(long, default_value_t = 64)]
     pub batch: usize,
@@ -211,6 +218,9 @@ fn eval_env(args: &EvalArgs, cfg: &Config) -> anyhow::Result<dvnav_config::EnvCo
         env.max_path_ratio == 0.0 || env.max_path_ratio >= 1.0,
         "--max-path-ratio must be at least 1 (a path is never shorter than the straight line)"
     );
+    if let Some(path) = &args.sensor {
+        env.sensor = Some(dvnav_sim::SensorSpec::load(path)?);
+    }
     env.robustness = dvnav_sim::RobustnessConfig {
         beam_dropout: args.dropout,
         latency_steps: args.latency,
@@ -231,6 +241,25 @@ fn eval_env(args: &EvalArgs, cfg: &Config) -> anyhow::Result<dvnav_config::EnvCo
     };
     env.robustness.check().map_err(|(k, r)| anyhow::anyhow!("{}: {r}", flag(&k)))?;
     Ok(env)
+}
+
+/// A simulated sensor must sit within every robot it is mounted on: outside, it could see
+/// from inside a wall.
+fn check_sensor_mount(
+    sensor: &dvnav_sim::SensorSpec,
+    tasks: &[Task],
+    default_radius: f64,
+) -> anyhow::Result<()> {
+    let offset = sensor.x.hypot(sensor.y);
+    for t in tasks {
+        let r = t.radius.unwrap_or(default_radius);
+        anyhow::ensure!(
+            offset < r,
+            "--sensor: the sensor sits {offset:.3} m from the axle centre, outside the robot of \
+             radius {r} m; mount it within the robot's body (its x and y)"
+        );
+    }
+    Ok(())
 }
 
 /// Parsed `--radii`.
@@ -495,6 +524,22 @@ pub fn run(args: EvalArgs) -> anyhow::Result<ExitCode> {
     );
     let opts = RunOptions { window: args.batch, samples: logger.is_some() };
     let env_cfg = eval_env(&args, &cfg)?;
+    if let Some(s) = &env_cfg.sensor {
+        check_sensor_mount(s, &tasks, cfg.env.robot_radius)?;
+        eprintln!(
+            "dvnav eval: observing through {} ({} readings over {}°, {}-{} m, σ {} m) at \
+             x {} m, y {} m, yaw {} rad",
+            if s.name.is_empty() { "the sensor" } else { &s.name },
+            s.beams,
+            s.fov_deg,
+            s.range_min,
+            s.range_max,
+            s.noise_std,
+            s.x,
+            s.y,
+            s.yaw
+        );
+    }
     let results = run_tasks(&tasks, &env_cfg, &mut policies, opts, &mut |task, done| {
         if let Some(l) = logger.as_mut() {
             l.log(task, groups[done.job] as u32, &done)?;

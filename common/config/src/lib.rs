@@ -430,6 +430,9 @@ impl Config {
         if let Some(f) = &e.footprint {
             f.validate().map_err(|err| bad("env.footprint", format!("{err:#}")))?;
         }
+        if let Some(s) = &e.sensor {
+            s.validate().map_err(|(k, r)| bad(&format!("env.sensor.{k}"), r))?;
+        }
         self.validate_radius_range()?;
         positive("env.v_max", e.v_max)?;
         positive("env.omega_max", e.omega_max)?;

@@ -8,7 +8,9 @@
 //!
 //! - as many reports of success or collision as terminated transitions, as many of timeout as
 //!   truncated ones;
-//! - 1 ≤ steps ≤ T_max (`env.max_steps`);
+//! - 1 ≤ steps ≤ T_max (`env.max_steps`), and a success no quicker than the robot can drive from
+//!   a start at least `env.min_start_goal_distance` away to within `env.goal_tolerance` of its
+//!   goal ([`EpisodeBounds::min_success_steps`]);
 //! - the return within `steps` times the bounds of one step's reward under the run's reward
 //!   function ([`EpisodeBounds::step_reward`]);
 //! - the stage one of the curriculum's.
@@ -28,6 +30,8 @@ pub struct EpisodeBounds {
     pub step_reward: (f64, f64),
     /// Stages of the curriculum: valid stages are `0..stages`.
     pub stages: u32,
+    /// The fewest steps a successful episode can take.
+    pub min_success_steps: u32,
 }
 
 impl EpisodeBounds {
@@ -42,7 +46,17 @@ impl EpisodeBounds {
         let progress = r.progress.abs() * env.v_max * env.dt * 2.0;
         let lo = r.success.min(r.collision).min(-progress - r.time_penalty.abs());
         let hi = r.success.max(r.collision).max(progress);
-        Self { max_steps: env.max_steps, step_reward: (lo, hi), stages: stages as u32 }
+        // Starts are at least min_start_goal_distance from their goal and success is within
+        // goal_tolerance of it; a step moves at most v_max·dt, doubled as above for jitter.
+        let need = env.min_start_goal_distance - env.goal_tolerance;
+        let per_step = 2.0 * env.v_max * env.dt;
+        let min_success_steps = ((need / per_step) - 1e-9).floor().max(1.0) as u32;
+        Self {
+            max_steps: env.max_steps,
+            step_reward: (lo, hi),
+            stages: stages as u32,
+            min_success_steps,
+        }
     }
 }
 
@@ -81,6 +95,16 @@ pub fn check_episodes(batch: &TransitionBatch, bounds: &EpisodeBounds) -> Result
             return Err(refuse(
                 "episode_steps",
                 format!("episode {i} took {} steps; T_max is {}", e.steps, bounds.max_steps),
+            ));
+        }
+        if e.outcome == Outcome::Success && e.steps < bounds.min_success_steps {
+            return Err(refuse(
+                "episode_steps",
+                format!(
+                    "episode {i} reached its goal in {} steps; from the closest start allowed \
+                     that takes at least {}",
+                    e.steps, bounds.min_success_steps
+                ),
             ));
         }
         let steps = e.steps as f64;
@@ -169,6 +193,12 @@ mod tests {
         let one = |e| batch((true, false), vec![e]);
         assert_eq!(reason(&one(episode(Outcome::Success, 0, 10.0, 0))), "episode_steps");
         assert_eq!(reason(&one(episode(Outcome::Success, 401, 10.0, 0))), "episode_steps");
+        // 1 m to within 0.2 m at 0.5 m/s and 0.2 s a step (doubled for jitter): 4 steps; a
+        // success in fewer than 3 is refused, a collision in one step is not.
+        assert_eq!(bounds().min_success_steps, 3);
+        assert_eq!(reason(&one(episode(Outcome::Success, 2, 10.0, 0))), "episode_steps");
+        assert!(check_episodes(&one(episode(Outcome::Success, 3, 10.0, 0)), &bounds()).is_ok());
+        assert!(check_episodes(&one(episode(Outcome::Collision, 1, -10.0, 0)), &bounds()).is_ok());
         // Ten steps cannot return more than ten successes' worth.
         assert_eq!(reason(&one(episode(Outcome::Success, 10, 1e4, 0))), "episode_return");
         assert_eq!(reason(&one(episode(Outcome::Success, 10, -101.0, 0))), "episode_return");

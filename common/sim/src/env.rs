@@ -2,6 +2,7 @@
 
 use super::grid::Reach;
 use super::room::Body;
+use super::sensor::MountedSensor;
 use super::{Footprint, Lidar, Pose2, Room, wrap_angle};
 use crate::EnvConfig;
 use crate::Outcome;
@@ -44,6 +45,10 @@ const ROBUSTNESS_STREAM: u64 = 0x0b05_7e55_d1ce_5eed;
 pub struct NavEnv {
     cfg: EnvConfig,
     lidar: Lidar,
+    /// `EnvConfig::sensor`: the real sensor the scan comes through, if any.
+    sensor: Option<MountedSensor>,
+    /// Meta beams the sensor did not see in the current scan (0 without a sensor).
+    unseen_beams: usize,
     room: Arc<Room>,
     /// The robot's shape, and the same as rapier shapes.
     footprint: Footprint,
@@ -128,6 +133,8 @@ impl NavEnv {
             cfg: cfg.clone(),
             scan: vec![cfg.lidar.range_max as f32; lidar.beams()],
             lidar,
+            sensor: cfg.sensor.as_ref().map(MountedSensor::new),
+            unseen_beams: 0,
             room,
             body: Body::new(&footprint),
             sweep_radius: footprint.sweep_radius(),
@@ -342,8 +349,21 @@ impl NavEnv {
     }
 
     fn update_scan(&mut self) {
-        let noise = (self.perturb.noise_std > 0.0).then_some(&mut self.noise_rng);
-        self.lidar.scan_active(&self.room, self.pose, self.active, noise, &mut self.scan);
+        if let Some(sensor) = &mut self.sensor {
+            // The sensor's own noise, not the meta LiDAR's.
+            let noise = (sensor.spec().noise_std > 0.0).then_some(&mut self.noise_rng);
+            self.unseen_beams = sensor.meta_scan(
+                &self.room,
+                self.pose,
+                self.active,
+                noise,
+                &self.cfg.lidar,
+                &mut self.scan,
+            );
+        } else {
+            let noise = (self.perturb.noise_std > 0.0).then_some(&mut self.noise_rng);
+            self.lidar.scan_active(&self.room, self.pose, self.active, noise, &mut self.scan);
+        }
         let p = self.perturb.beam_dropout;
         if p > 0.0 {
             let max = self.cfg.lidar.range_max as f32;
@@ -542,6 +562,12 @@ impl NavEnv {
     /// The LiDAR ranges at the current pose (m).
     pub fn scan(&self) -> &[f32] {
         &self.scan
+    }
+
+    /// Meta beams of the current scan that the configured sensor (`EnvConfig::sensor`) did not
+    /// see and the resampling filled; 0 without a sensor.
+    pub fn unseen_beams(&self) -> usize {
+        self.unseen_beams
     }
 
     /// The room of the current episode.

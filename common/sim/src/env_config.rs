@@ -57,8 +57,14 @@ pub struct EnvConfig {
     /// Longest translation (m) between two collision checks within one control step; keeps a
     /// fast robot from passing through a thin wall.
     pub collision_substep: f64,
-    /// The LiDAR.
+    /// The LiDAR: the meta agent's beams, at the axle centre.
     pub lidar: LidarConfig,
+    /// A real robot's LiDAR to observe through instead (`[env.sensor]`, or `dvnav eval --sensor
+    /// FILE`): the environment simulates that sensor's `LaserScan` at its mounting and carries it
+    /// over to `lidar`'s beams as `dvnav serve` would ([`crate::sensor`]). Absent: the meta
+    /// agent's own LiDAR.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sensor: Option<crate::SensorSpec>,
     /// The reward function.
     pub reward: RewardConfig,
     /// LiDAR dropout, observation latency, actuation noise and control-period jitter
@@ -100,6 +106,7 @@ impl Default for EnvConfig {
             max_path_ratio: 0.0,
             collision_substep: 0.02,
             lidar: LidarConfig::default(),
+            sensor: None,
             reward: RewardConfig::default(),
             robustness: crate::RobustnessConfig::default(),
         }

@@ -129,6 +129,7 @@ impl Footprint {
                 "parts[{i}]: a footprint is already a union; list the parts directly"
             );
             p.validate().map_err(|e| anyhow::anyhow!("parts[{i}]: {e}"))?;
+            within_reach(p).map_err(|e| anyhow::anyhow!("parts[{i}]: {e}"))?;
         }
         Ok(())
     }
@@ -150,6 +151,24 @@ impl Footprint {
     pub fn load(path: &Path) -> Result<Footprint, SpecFileError> {
         let (text, source) = read_spec_file(path, "footprint file")?;
         Footprint::from_toml_str(&text, &source)
+    }
+}
+
+/// How far (m) any part of a robot may reach from its axle centre: no robot is larger, and a
+/// footprint beyond it (a part centred at 1e308 m) would make every size derived from it
+/// overflow.
+pub const MAX_ROBOT_EXTENT_M: f64 = 20.0;
+
+/// A part of a footprint lies within [`MAX_ROBOT_EXTENT_M`] of the axle centre.
+fn within_reach(p: &ObstacleSpec) -> Result<(), String> {
+    let reach = p.max_distance_from([0.0, 0.0]);
+    if reach.is_finite() && reach <= MAX_ROBOT_EXTENT_M {
+        Ok(())
+    } else {
+        Err(format!(
+            "reaches {reach:e} m from the axle centre; a robot's footprint lies within \
+             {MAX_ROBOT_EXTENT_M} m of it"
+        ))
     }
 }
 
@@ -177,6 +196,7 @@ pub fn checked_parts(
             return Err(err(line, format!("parts[{i}]"), why));
         }
         p.get_ref().validate().map_err(|e| err(line, format!("parts[{i}]"), e.to_string()))?;
+        within_reach(p.get_ref()).map_err(|e| err(line, format!("parts[{i}]"), e))?;
     }
     Ok(parts.into_iter().map(|p| p.into_inner()).collect())
 }

@@ -217,7 +217,12 @@ pub async fn serve(
             .map_err(|e| anyhow::anyhow!("cannot set up TLS for the controller service: {e}"))?;
     }
     let server = builder
-        .add_service(ControllerServer::new(ControllerService { ctl, token }))
+        .add_service(ControllerServer::new(ControllerService {
+            beams: ctl.info("").beams,
+            ctl,
+            token,
+            unseen_warned: Default::default(),
+        }))
         .serve_with_incoming_shutdown(incoming, async {
             shutdown.await;
             draining.cancel();
@@ -285,6 +290,10 @@ struct ControllerService {
     ctl: Arc<DvstController>,
     /// The shared token callers must present, if any.
     token: Option<String>,
+    /// The meta agent's beams.
+    beams: usize,
+    /// Robots already warned that their sensor leaves most meta beams unseen (once each).
+    unseen_warned: std::sync::Mutex<std::collections::HashSet<String>>,
 }
 
 impl ControllerService {
@@ -295,6 +304,34 @@ impl ControllerService {
             Ok(())
         } else {
             Err(Status::unauthenticated("missing or wrong access token"))
+        }
+    }
+}
+
+impl ControllerService {
+    /// A scan that leaves most of the meta agent's beams unseen drives on guesses (a sensor
+    /// turned the wrong way, a narrow field, a driver's invalid readings): said once per robot,
+    /// naming its sensor, the first time it happens.
+    fn warn_if_mostly_unseen(&self, robot: &str, c: &Command) {
+        if c.filled_beams * 2 <= self.beams {
+            return;
+        }
+        let mut warned = self.unseen_warned.lock().unwrap_or_else(|e| e.into_inner());
+        // Bounded like the robot table: a server does not grow with robot names.
+        if warned.len() < 4096 && warned.insert(robot.to_string()) {
+            let info = self.ctl.info(robot);
+            let lidar = info.footprint.robot.lidar;
+            tracing::warn!(
+                robot,
+                footprint = %c.footprint,
+                filled_beams = c.filled_beams,
+                beams = self.beams,
+                lidar_x = lidar.x,
+                lidar_y = lidar.y,
+                lidar_yaw = lidar.yaw,
+                "most of the meta agent's beams are not seen by this robot's sensor and are \
+                 filled: check the footprint file's [lidar] mounting and the scan's angles"
+            );
         }
     }
 }
@@ -347,7 +384,11 @@ fn info_reply(i: ControllerInfo) -> pb::InfoReply {
         lidar_x: fp.robot.lidar.x,
         lidar_y: fp.robot.lidar.y,
         lidar_yaw: fp.robot.lidar.yaw,
-        lidar_uncovered_range: fp.robot.lidar.uncovered_range,
+        lidar_uncovered_range: fp.robot.lidar.uncovered.range().unwrap_or(0.0),
+        lidar_uncovered: match fp.robot.lidar.uncovered {
+            dvnav_nav::dvst::Uncovered::Nearest => "nearest".into(),
+            dvnav_nav::dvst::Uncovered::Range(_) => "range".into(),
+        },
         footprint: fp.robot.footprint.name,
         model: i.model.name,
         model_version: i.model.version,
@@ -370,6 +411,7 @@ impl Controller for ControllerService {
         });
         let command = command.map_err(status)?;
         tracing::trace!(robot = %r.robot_id, v = command.v, omega = command.omega, "Act");
+        self.warn_if_mostly_unseen(&r.robot_id, &command);
         Ok(Response::new(act_reply(command, self.ctl.model())))
     }
 

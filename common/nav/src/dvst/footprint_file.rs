@@ -14,7 +14,7 @@
 //! x = 0.12                 # m ahead of the axle centre
 //! y = 0.0                  # m to the left
 //! yaw = 0.0                # rad, left positive
-//! uncovered_range = 0.0    # m read by meta beams the sensor does not see (0: blocked)
+//! # uncovered_range = 0.0  # optional: m for unseen meta beams (default: nearest seen range)
 //!
 //! [meta]                   # optional; default: the circle of radius 0.2 m
 //! shape = "rectangle"      # or: shape = "circle", radius = 0.2
@@ -36,11 +36,11 @@
 //! The parts are the whole varied robot (design §5: DVR = MR ∪ cargo), body included: a
 //! robot smaller than the meta robot is a file with only its own, smaller body (μ < 1).
 
-use super::laser_scan::SensorSetup;
+use super::laser_scan::{SensorSetup, Uncovered};
 use super::scale::{MetaRobot, covering_scale};
 use super::transfer::VelocityBounds;
 use dvnav_sim::room_file::{line_of, parse_toml, read_spec_file};
-use dvnav_sim::{Footprint, ObstacleSpec, SpecFileError, checked_parts};
+use dvnav_sim::{Footprint, MAX_ROBOT_EXTENT_M, ObstacleSpec, SpecFileError, checked_parts};
 use serde::Deserialize;
 use std::path::Path;
 use toml::Spanned;
@@ -100,9 +100,14 @@ impl VariedRobot {
         self.meta.validate().map_err(|e| anyhow::anyhow!("meta: {e}"))?;
         self.lidar.validate().map_err(|e| anyhow::anyhow!("lidar.{e}"))?;
         anyhow::ensure!(
-            self.margin.is_finite() && self.margin >= 0.0,
-            "margin must be a length ≥ 0 m, got {}",
+            self.margin.is_finite() && (0.0..=MAX_ROBOT_EXTENT_M).contains(&self.margin),
+            "margin must be a length of 0 to {MAX_ROBOT_EXTENT_M} m, got {}",
             self.margin
+        );
+        let mu = self.mu();
+        anyhow::ensure!(
+            mu.is_finite() && mu > 0.0,
+            "mu: the scale that covers this robot is {mu}, not a finite positive number"
         );
         for (name, x) in [("v_max", self.v_max), ("omega_max", self.omega_max)] {
             if let Some(x) = x {
@@ -137,8 +142,7 @@ impl VariedRobot {
             y: f64,
             #[serde(default)]
             yaw: f64,
-            #[serde(default)]
-            uncovered_range: f64,
+            uncovered_range: Option<f64>,
         }
         let file: File = parse_toml(text, source)?;
         let err = |span: std::ops::Range<usize>, key: &str, reason: String| SpecFileError {
@@ -159,8 +163,12 @@ impl VariedRobot {
             None => MetaRobot::default(),
         };
         let margin = match file.margin {
-            Some(m) if !(m.get_ref().is_finite() && *m.get_ref() >= 0.0) => {
-                let why = format!("must be a length ≥ 0 m, got {}", m.get_ref());
+            Some(m)
+                if !(m.get_ref().is_finite()
+                    && (0.0..=MAX_ROBOT_EXTENT_M).contains(m.get_ref())) =>
+            {
+                let why =
+                    format!("must be a length of 0 to {MAX_ROBOT_EXTENT_M} m, got {}", m.get_ref());
                 return Err(err(m.span(), "margin", why));
             }
             Some(m) => m.into_inner(),
@@ -176,7 +184,8 @@ impl VariedRobot {
             Some(l) => {
                 let span = l.span();
                 let Lidar { x, y, yaw, uncovered_range } = l.into_inner();
-                let setup = SensorSetup { x, y, yaw, uncovered_range };
+                let uncovered = uncovered_range.map_or(Uncovered::Nearest, Uncovered::Range);
+                let setup = SensorSetup { x, y, yaw, uncovered };
                 setup.validate().map_err(|e| err(span, &format!("lidar.{}", e.field), e.reason))?;
                 setup
             }
@@ -255,7 +264,8 @@ mod tests {
             assert!(e.reason.contains(reason), "{e}");
             assert!(e.to_string().starts_with("r.toml:"), "{e}");
         };
-        check(base.replace("margin = 0.03", "margin = -0.03"), Some(2), "margin", "≥ 0");
+        check(base.replace("margin = 0.03", "margin = -0.03"), Some(2), "margin", "0 to 20 m");
+        check(base.replace("margin = 0.03", "margin = 1e300"), Some(2), "margin", "0 to 20 m");
         check(base.replace("v_max = 0.4", "v_max = 0.0"), Some(3), "v_max", "positive");
         check(base.replace("back = 0.15", "back = -0.15"), Some(12), "meta", "`back`");
         check(
@@ -280,7 +290,7 @@ mod tests {
         );
         check(base.replace("yaw = 0.0", "yaw = 1e9"), Some(6), "lidar.yaw", "±4π");
         check(
-            base.replace("uncovered_range = 0.0", "uncovered_range = -2.0"),
+            base.replace("# uncovered_range = 0.0", "uncovered_range = -2.0"),
             Some(6),
             "lidar.uncovered_range",
             "range",

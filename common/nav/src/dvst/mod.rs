@@ -37,15 +37,18 @@
 pub mod agent;
 pub mod controller;
 pub mod footprint_file;
-pub mod laser_scan;
 pub mod robots;
 pub mod scale;
 pub mod shared_policy;
 pub mod transfer;
 
+/// The resampling of any LiDAR's scan to the meta agent's beams lives with the simulator, which
+/// also uses it for `dvnav eval --sensor` ([`dvnav_sim::sensor`]).
+pub use dvnav_sim::laser_scan;
+
 pub use agent::Dvst;
 pub use controller::DvstController;
 pub use footprint_file::VariedRobot;
-pub use laser_scan::{BeamLayout, LaserScan, SensorSetup};
+pub use laser_scan::{BeamLayout, LaserScan, SensorSetup, Uncovered};
 pub use scale::{MetaRobot, Reach, covering_scale};
 pub use transfer::{VelocityBounds, transfer_observation, transfer_policy};

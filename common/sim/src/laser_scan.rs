@@ -1,25 +1,35 @@
 //! Any LiDAR's scan, as ROS's `sensor_msgs/LaserScan` describes it, resampled to the meta
 //! agent's beams: the robot's own sensor (a Hokuyo's 1,081 beams over 270°, an RPLidar's
 //! varying count over 360°, mounted ahead of the axle, turned) stands in for the meta robot's.
+//! `dvnav serve`, `dvnav replay`, the ROS 2 bridge, Python and `dvnav eval --sensor` (through
+//! [`crate::sensor`]) all use this one function.
 //!
-//! Readings follow REP 117: a finite range within `[range_min, range_max]` is a return; `+inf`
-//! is "no return" (nothing within `range_max`), read as `range_max`; `-inf` is "too close to
-//! measure", read as `range_min`; NaN and finite values outside the range are invalid and
-//! ignored.
+//! **Readings** follow REP 117 and the common drivers: a finite range within `[range_min,
+//! range_max]` is a return; `+inf` is "no return" (nothing within `range_max`), read as
+//! `range_max`; exactly `0.0` is "no return" too, as the drivers of many low-cost LiDARs
+//! (Neato's LDS, TurtleBot 3's LDS-01) report it; `-inf` is "too close to measure", read as
+//! `range_min`; NaN and other values outside the range are invalid and ignored.
 //!
 //! **Conservative resampling.** Sensor beam `j` covers the angular interval of width
 //! `|angle_increment|` centred on `angle_min + j·angle_increment`; meta beam `i` covers
 //! `[-fov/2 + i·w, -fov/2 + (i+1)·w)` with `w = fov/beams`. Each meta beam takes the *nearest*
 //! reading among the sensor beams whose interval overlaps its own, so a thin obstacle seen by
 //! one fine sensor beam is never averaged away, and a coarse sensor beam speaks for every meta
-//! beam it spans. A meta beam that no valid reading reaches (outside the sensor's field of
-//! view, or only NaN there) gets [`SensorSetup::uncovered_range`], 0 m by default: unseen space
-//! is treated as blocked, never as free. [`resample`] says how many beams were filled so.
+//! beam it spans.
 //!
 //! **Mounting.** A sensor at `(x, y)` from the axle centre, turned by `yaw`, sees points
 //! `p = (x, y) + r·(cos(yaw + θ), sin(yaw + θ))` of the robot frame; the meta agent's LiDAR sits
 //! at the axle centre. Each reading's interval is carried over through its two edge points
 //! (angles `atan2(p)`), and its range is the nearest of the edges and the centre, `|p|`.
+//!
+//! **Directions no reading covers** (outside a narrower sensor's field; beside a sensor ahead of
+//! the axle, whose field seen from the axle leaves gaps near its edges; where every reading was
+//! invalid) get, by default ([`Uncovered::Nearest`]), the nearer of the ranges at the two ends
+//! of the gap, the way the nearest projected points in that neighbourhood bound it: a wall that
+//! runs into the unseen sector is taken to go on at that distance. Filling them with 0 m, as this
+//! module once did, put an obstacle inside the robot's own body that the agent turned away from
+//! for ever (docs/results.md, "Real sensors"). [`Uncovered::Range`] fills them with a fixed
+//! range instead; [`resample`] says how many beams were filled either way.
 
 use serde::Serialize;
 use std::f64::consts::{PI, TAU};
@@ -57,13 +67,34 @@ pub struct SensorSetup {
     pub y: f64,
     /// The sensor's heading relative to the robot's (rad, left positive).
     pub yaw: f64,
-    /// What a meta beam with no valid reading reads (m); 0: blocked.
-    pub uncovered_range: f64,
+    /// What a meta beam with no valid reading reads.
+    pub uncovered: Uncovered,
+}
+
+/// What a meta beam that no valid reading reaches reads (see the module docs).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Uncovered {
+    /// The nearer of the ranges at the two ends of the unseen run of beams (the default).
+    #[default]
+    Nearest,
+    /// This range (m); 0 treats unseen space as blocked.
+    Range(f64),
+}
+
+impl Uncovered {
+    /// The fixed range, if that is the rule.
+    pub fn range(self) -> Option<f64> {
+        match self {
+            Uncovered::Nearest => None,
+            Uncovered::Range(r) => Some(r),
+        }
+    }
 }
 
 impl Default for SensorSetup {
     fn default() -> Self {
-        SensorSetup { x: 0.0, y: 0.0, yaw: 0.0, uncovered_range: 0.0 }
+        SensorSetup { x: 0.0, y: 0.0, yaw: 0.0, uncovered: Uncovered::Nearest }
     }
 }
 
@@ -79,8 +110,9 @@ impl SensorSetup {
             let why = format!("must be an angle (rad) within ±4π, got {}", self.yaw);
             return Err(ScanError::new("yaw", why));
         }
-        let u = self.uncovered_range;
-        if !(u.is_finite() && (0.0..=MAX_RANGE_M).contains(&u)) {
+        if let Uncovered::Range(u) = self.uncovered
+            && !(u.is_finite() && (0.0..=MAX_RANGE_M).contains(&u))
+        {
             let why = format!("must be a range in [0, {MAX_RANGE_M}] m, got {u}");
             return Err(ScanError::new("uncovered_range", why));
         }
@@ -105,6 +137,11 @@ impl BeamLayout {
     /// The layout of `beams` beams over `fov_deg` degrees.
     pub fn new(beams: usize, fov_deg: f64) -> BeamLayout {
         BeamLayout { beams, fov: fov_deg.to_radians() }
+    }
+
+    /// Whether the beams go all the way round (the last one neighbours the first).
+    fn wraps(&self) -> bool {
+        self.fov >= TAU - 1e-9
     }
 
     /// Lowest angle and width of one beam's interval.
@@ -190,10 +227,10 @@ impl LaserScan<'_> {
         Ok(())
     }
 
-    /// Reading `j` as a range (m), or `None` for an invalid one (REP 117).
+    /// Reading `j` as a range (m), or `None` for an invalid one (see the module docs).
     fn reading(&self, j: usize) -> Option<f64> {
         let r = self.ranges[j];
-        if r == f32::INFINITY {
+        if r == f32::INFINITY || r == 0.0 {
             Some(self.range_max)
         } else if r == f32::NEG_INFINITY {
             Some(self.range_min)
@@ -206,7 +243,7 @@ impl LaserScan<'_> {
 
 /// Resamples `scan`, from a sensor mounted as `setup` says, to the meta agent's `layout`,
 /// writing one range (m, robot frame, from the axle centre) per meta beam into `out`. Returns
-/// how many meta beams no valid reading reached (they read `setup.uncovered_range`).
+/// how many meta beams no valid reading reached (they read what `setup.uncovered` says).
 ///
 /// # Panics
 /// If `out` is not `layout.beams` long.
@@ -230,16 +267,54 @@ pub fn resample(
         };
         layout.overlapping(lo, hi, |i| nearest[i] = nearest[i].min(range));
     }
-    let mut filled = 0;
+    let filled = nearest.iter().filter(|r| !r.is_finite()).count();
+    match setup.uncovered {
+        Uncovered::Range(u) => nearest.iter_mut().filter(|r| !r.is_finite()).for_each(|r| *r = u),
+        Uncovered::Nearest => fill_from_neighbours(&mut nearest, layout.wraps()),
+    }
     for (o, &r) in out.iter_mut().zip(&nearest) {
-        *o = if r.is_finite() {
-            r as f32
-        } else {
-            filled += 1;
-            setup.uncovered_range as f32
-        };
+        *o = r as f32;
     }
     Ok(filled)
+}
+
+/// Gives every run of unseen (infinite) beams the nearer of the seen ranges at its two ends (one
+/// end at the edge of a field that does not wrap; `wraps`: the last beam neighbours the first).
+/// With no beam seen at all, every beam reads 0 (blocked): a scan that says nothing is no
+/// licence to drive.
+fn fill_from_neighbours(ranges: &mut [f64], wraps: bool) {
+    let n = ranges.len();
+    let Some(seen) = ranges.iter().position(|r| r.is_finite()) else {
+        ranges.iter_mut().for_each(|r| *r = 0.0);
+        return;
+    };
+    // Walk once around (or across) from a seen beam, so that every run has a known start.
+    let order: Vec<usize> =
+        if wraps { (0..n).map(|k| (seen + k) % n).collect() } else { (0..n).collect() };
+    let mut k = 0;
+    while k < n {
+        if ranges[order[k]].is_finite() {
+            k += 1;
+            continue;
+        }
+        let end = (k..n).find(|&e| ranges[order[e]].is_finite());
+        let before = (k > 0).then(|| ranges[order[k - 1]]);
+        let after = match end {
+            Some(e) => Some(ranges[order[e]]),
+            None if wraps => Some(ranges[order[0]]),
+            None => None,
+        };
+        let value = match (before, after) {
+            (Some(a), Some(b)) => a.min(b),
+            (Some(a), None) | (None, Some(a)) => a,
+            (None, None) => unreachable!("a seen beam exists"),
+        };
+        let stop = end.unwrap_or(n);
+        for &i in &order[k..stop] {
+            ranges[i] = value;
+        }
+        k = stop;
+    }
 }
 
 /// A reading `r` along `theta ± half` (sensor at `setup`) seen from the axle centre: the

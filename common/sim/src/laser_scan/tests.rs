@@ -28,6 +28,7 @@ fn reference(s: &LaserScan, uncovered: f32, layout: BeamLayout) -> (Vec<f32>, us
             let value = match r {
                 r if r.is_nan() => continue,
                 f32::INFINITY => s.range_max,
+                0.0 => s.range_max,
                 f32::NEG_INFINITY => s.range_min,
                 r if f64::from(r) < s.range_min || f64::from(r) > s.range_max => continue,
                 r => f64::from(r),
@@ -75,7 +76,8 @@ fn random_scans_match_the_plain_computation() {
                     })
                     .collect();
                 let s = scan(angle_min, inc, &ranges);
-                let setup = SensorSetup { uncovered_range: 0.25, ..SensorSetup::default() };
+                let setup =
+                    SensorSetup { uncovered: Uncovered::Range(0.25), ..SensorSetup::default() };
                 let got = run(&s, &setup, layout);
                 let want = reference(&s, 0.25, layout);
                 assert_eq!(got.1, want.1, "filled, {n} readings over {fov}°, trial {trial}");
@@ -92,15 +94,21 @@ fn readings_follow_rep_117() {
     let inc = PI / 2.0;
     // Sensor readings centred on −135°, −45°, 45°, 135° cover meta beams 0..4 one to one.
     let ranges = [f32::INFINITY, f32::NEG_INFINITY, f32::NAN, 3.5];
-    let setup = SensorSetup::default();
-    let (out, filled) = run(&scan(-0.75 * PI, inc, &ranges), &setup, layout);
+    let blocked = SensorSetup { uncovered: Uncovered::Range(0.0), ..SensorSetup::default() };
+    let (out, filled) = run(&scan(-0.75 * PI, inc, &ranges), &blocked, layout);
     assert_eq!(out, [8.0, 0.05, 0.0, 3.5], "+inf = range_max, -inf = range_min, NaN unseen");
     assert_eq!(filled, 1);
-    // Finite readings outside [range_min, range_max] are invalid too.
+    // By default the unseen beam takes the nearer of its neighbours' ranges.
+    let (out, _) = run(&scan(-0.75 * PI, inc, &ranges), &SensorSetup::default(), layout);
+    assert_eq!(out, [8.0, 0.05, 0.05, 3.5]);
+    // 0.0 is a driver's "no return", like +inf; other finite readings outside [range_min,
+    // range_max] are invalid.
     let ranges = [9.0, 0.01, 0.0, -1.0];
-    let uncovered = SensorSetup { uncovered_range: 2.0, ..setup };
+    let uncovered = SensorSetup { uncovered: Uncovered::Range(2.0), ..SensorSetup::default() };
     let (out, filled) = run(&scan(-0.75 * PI, inc, &ranges), &uncovered, layout);
-    assert_eq!((out, filled), (vec![2.0; 4], 4));
+    assert_eq!((out, filled), (vec![2.0, 2.0, 8.0, 2.0], 3));
+    let (out, _) = run(&scan(-0.75 * PI, inc, &ranges), &SensorSetup::default(), layout);
+    assert_eq!(out, [8.0; 4], "the one return fills the rest of the circle");
 }
 
 #[test]
@@ -143,12 +151,13 @@ fn beams_outside_the_sensor_get_the_uncovered_value() {
     // 45° of 0.5° beams each side, less the one each side the edge reading's half-interval
     // reaches into.
     assert_eq!(filled, 2 * 89, "{filled}");
-    assert_eq!(out[0], 0.0, "blocked by default");
+    assert_eq!(out[0], 4.0, "the nearest seen range by default");
     assert_eq!(out[270], 4.0);
-    let open = SensorSetup { uncovered_range: 10.0, ..SensorSetup::default() };
-    assert_eq!(run(&s, &open, META).0[0], 10.0);
+    let range = |u: f64| SensorSetup { uncovered: Uncovered::Range(u), ..SensorSetup::default() };
+    assert_eq!(run(&s, &range(0.0), META).0[0], 0.0);
+    assert_eq!(run(&s, &range(10.0), META).0[0], 10.0);
     // Turned to look behind, it sees none of the meta agent's front.
-    let back = SensorSetup { yaw: PI, ..SensorSetup::default() };
+    let back = SensorSetup { yaw: PI, ..range(0.0) };
     let (out, _) = run(&s, &back, META);
     assert_eq!(out[270], 0.0);
     assert_eq!(out[0], 4.0, "−135° is seen looking backwards");
@@ -179,7 +188,10 @@ fn a_sensor_ahead_of_the_axle_reads_ranges_from_the_axle() {
             assert!(truth - f64::from(r) < truth * w * a.tan().abs() + 0.01, "beam {i}: {r}");
         }
     }
-    assert!(filled > 0 && out[0] == 0.0, "the far sides are unseen");
+    // The far sides are unseen; each takes the range at the edge of what is seen on its side.
+    assert!(filled > 0);
+    let first_seen = (0..540).find(|&i| out[i] != out[0]).unwrap();
+    assert!(first_seen > 100 && out[0] > 1.9 && out[539] > 1.9, "{first_seen} {}", out[0]);
     // The same sensor on the axle, turned 30° left: everything shifts by 60 meta beams.
     let turned = SensorSetup { yaw: PI / 6.0, ..SensorSetup::default() };
     let (t, _) = run(&s, &turned, META);
@@ -207,7 +219,25 @@ fn malformed_scans_name_the_field() {
     assert_eq!(bad(SensorSetup { x: f64::INFINITY, ..SensorSetup::default() }), "x");
     assert_eq!(bad(SensorSetup { yaw: 100.0, ..SensorSetup::default() }), "yaw");
     assert_eq!(
-        bad(SensorSetup { uncovered_range: -1.0, ..SensorSetup::default() }),
+        bad(SensorSetup { uncovered: Uncovered::Range(-1.0), ..SensorSetup::default() }),
         "uncovered_range"
     );
+}
+
+#[test]
+fn unseen_runs_take_the_nearer_range_at_their_ends() {
+    let inf = f64::INFINITY;
+    let fill = |v: &[f64], wraps: bool| {
+        let mut v = v.to_vec();
+        fill_from_neighbours(&mut v, wraps);
+        v
+    };
+    // Runs at both edges, one between two ranges.
+    let v = [inf, inf, 3.0, inf, inf, 1.0, 2.0, inf];
+    assert_eq!(fill(&v, false), [3.0, 3.0, 3.0, 1.0, 1.0, 1.0, 2.0, 2.0]);
+    // Around the circle the edge runs join: the last beam neighbours the first.
+    assert_eq!(fill(&v, true), [2.0, 2.0, 3.0, 1.0, 1.0, 1.0, 2.0, 2.0]);
+    assert_eq!(fill(&[inf, 5.0, inf], true), [5.0, 5.0, 5.0]);
+    assert_eq!(fill(&[inf; 3], false), [0.0; 3], "nothing seen: blocked");
+    assert_eq!(fill(&[1.0, 2.0], true), [1.0, 2.0]);
 }
