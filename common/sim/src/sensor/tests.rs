@@ -20,17 +20,17 @@ fn compare(sensor: &SensorSpec, n: usize) -> Vec<(f32, f32, bool)> {
     let room: Arc<Room> = Room::builtin("env3").unwrap();
     let mut env = NavEnv::new(room.clone(), &cfg, 7);
     let mut mounted = MountedSensor::new(sensor);
+    // Seen: a beam whose interval the sensor's readings reach (the fill rule off).
+    let blocked = SensorSpec { uncovered_range: Some(0.0), ..sensor.clone() };
+    let mut probe = MountedSensor::new(&blocked);
     let mut out = vec![0.0f32; cfg.lidar.beams];
+    let mut marks = vec![0.0f32; cfg.lidar.beams];
     let mut rows = Vec::new();
     for _ in 0..n {
         env.reset();
         let truth = env.scan().to_vec();
         let none: Option<&mut Pcg64> = None;
         mounted.meta_scan(&room, env.pose(), 0, none, &cfg.lidar, &mut out);
-        // Seen: a beam whose interval the sensor's readings reach (the fill rule off).
-        let blocked = SensorSpec { uncovered_range: Some(0.0), ..sensor.clone() };
-        let mut probe = MountedSensor::new(&blocked);
-        let mut marks = vec![0.0f32; out.len()];
         let none: Option<&mut Pcg64> = None;
         probe.meta_scan(&room, env.pose(), 0, none, &cfg.lidar, &mut marks);
         for i in 0..out.len() {
