@@ -54,12 +54,12 @@ impl Raster {
     }
 
     /// Flat index of cell `(i, j)`.
-    fn index(&self, i: usize, j: usize) -> usize {
+    pub(crate) fn index(&self, i: usize, j: usize) -> usize {
         j * self.n + i
     }
 
     /// The cell whose square holds `p`, if `p` is on the raster.
-    fn cell_of(&self, p: Point) -> Option<(usize, usize)> {
+    pub(crate) fn cell_of(&self, p: Point) -> Option<(usize, usize)> {
         let fi = ((p[0] - self.origin[0]) / self.res).floor();
         let fj = ((p[1] - self.origin[1]) / self.res).floor();
         let ok = |f: f64| f >= 0.0 && f < self.n as f64;
@@ -67,7 +67,7 @@ impl Raster {
     }
 
     /// Half a cell diagonal (m).
-    fn half_diagonal(&self) -> f64 {
+    pub(crate) fn half_diagonal(&self) -> f64 {
         self.res * std::f64::consts::FRAC_1_SQRT_2
     }
 }
@@ -104,10 +104,21 @@ impl ClearanceMap {
         &self.raster
     }
 
+    /// Each cell centre's distance (m) to the nearest occupied centre, by flat index.
+    pub(crate) fn distances(&self) -> &[f64] {
+        &self.dist
+    }
+
+    /// The clearance a disc centred on cell centres must have to be passable
+    /// ([`ClearanceMap::reach`]): its radius plus a cell diagonal.
+    pub(crate) fn passable_need(&self, radius: f64) -> f64 {
+        radius + 2.0 * self.raster.half_diagonal()
+    }
+
     /// The cells a disc of `radius` can be at, and their components.
     pub fn reach(&self, radius: f64) -> Reach {
         let r = &self.raster;
-        let need = radius + 2.0 * r.half_diagonal();
+        let need = self.passable_need(radius);
         let passable: Vec<bool> = self.dist.iter().map(|&d| d >= need).collect();
         let (label, sizes) = components(&passable, r.n);
         Reach { raster: r.clone(), radius, label, sizes }
@@ -248,7 +259,7 @@ fn components(passable: &[bool], n: usize) -> (Vec<u32>, Vec<usize>) {
 }
 
 /// The 8 neighbours of flat cell `c` on an `n`×`n` raster, with the step length in cells.
-fn neighbours(c: usize, n: usize) -> impl Iterator<Item = (usize, f64)> {
+pub(crate) fn neighbours(c: usize, n: usize) -> impl Iterator<Item = (usize, f64)> {
     let (i, j) = ((c % n) as isize, (c / n) as isize);
     const STEPS: [(isize, isize, f64); 8] = [
         (1, 0, 1.0),
@@ -477,9 +488,9 @@ impl FreeSpace {
 }
 
 /// An A* frontier entry, popped smallest `f` first.
-struct Open {
-    f: f64,
-    c: usize,
+pub(crate) struct Open {
+    pub(crate) f: f64,
+    pub(crate) c: usize,
 }
 
 impl PartialEq for Open {

@@ -27,6 +27,10 @@
 //! - [`NavEnv`]: one episode at a time for a robot of any footprint (the circular meta robot
 //!   by default) with unicycle kinematics, the paper's reward, timed obstacles, and the flat
 //!   observation of [`obs`].
+//! - [`planner`]: paths through a room for a robot's size (A* on the clearance raster
+//!   inflated by the footprint, string-pulled), for the meta agent to follow by subgoals.
+//! - [`subgoal`]: the subgoal rule that follows a planned path (pure pursuit, replans, the
+//!   rotation shim), one implementation for training, evaluation and the controller.
 //! - [`VecEnv`]: many [`NavEnv`]s stepped in parallel with rayon.
 //!
 //! There is no dynamics here: the robot is kinematic (velocity commands are followed exactly),
@@ -59,12 +63,14 @@ pub mod laser_scan;
 mod lidar;
 pub mod obs;
 mod outcome;
+pub mod planner;
 pub mod robustness;
 mod room;
 pub mod room_file;
 pub mod room_set;
 pub mod sensor;
 pub mod spec;
+pub mod subgoal;
 mod vec_env;
 
 pub use env::{NavEnv, StepOutcome};

@@ -253,10 +253,15 @@ impl Room {
         if let Some((_, r)) = cache.iter().find(|(k, _)| *k == key) {
             return r.clone();
         }
-        let map = self.clearance_map.get_or_init(|| ClearanceMap::of_room(&self.spec));
-        let r = Arc::new(map.reach(radius));
+        let r = Arc::new(self.clearance_map().reach(radius));
         cache.push((key, r.clone()));
         r
+    }
+
+    /// The room's static shapes rastered with each cell's clearance ([`crate::grid`]): computed
+    /// on first use and kept. The path planner ([`crate::planner`]) searches it.
+    pub fn clearance_map(&self) -> &ClearanceMap {
+        self.clearance_map.get_or_init(|| ClearanceMap::of_room(&self.spec))
     }
 
     /// The data this room was built from.
