@@ -442,6 +442,9 @@ impl Config {
         non_negative("env.spawn_clearance", e.spawn_clearance)?;
         non_negative("env.max_start_goal_distance", e.max_start_goal_distance)?;
         e.robustness.check().map_err(|(k, r)| bad(&format!("env.robustness.{k}"), r))?;
+        if let Some(sg) = &e.subgoals {
+            sg.check().map_err(|(k, r)| bad(&k, r))?;
+        }
         if e.max_start_goal_distance > 0.0 && e.max_start_goal_distance < e.min_start_goal_distance
         {
             return Err(bad(
@@ -896,6 +899,22 @@ mod tests {
         assert_eq!(err.key, "sac.gamma");
         let err = Config::from_toml_str("[env.lidar]\nbeams = 10\n").unwrap_err();
         assert_eq!(err.key, "network.conv1_kernel");
+    }
+
+    #[test]
+    fn subgoals_round_trip_and_bad_ones_name_the_key() {
+        let cfg = Config::from_toml_str("[env.subgoals]\nlookahead_m = 2.0\n").unwrap();
+        let sg = cfg.env.subgoals.clone().unwrap();
+        assert_eq!(sg.lookahead_m, 2.0);
+        assert!(sg.follow && sg.rotation_shim);
+        assert_eq!(Config::from_toml_str(&cfg.to_toml_string()).unwrap(), cfg);
+        let err = Config::from_toml_str("[env.subgoals]\nstall_s = -1\n").unwrap_err();
+        assert_eq!(err.key, "env.subgoals.stall_s");
+        let err =
+            Config::from_toml_str("[env.subgoals.planner]\nclearance_decay_m = 0\n").unwrap_err();
+        assert_eq!(err.key, "env.subgoals.planner.clearance_decay_m");
+        // Without the table, the paper's mapless task (and no key in the config's hash).
+        assert!(!Config::default().to_toml_string().contains("subgoals"));
     }
 
     #[test]

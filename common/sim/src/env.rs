@@ -14,6 +14,10 @@ use rand_pcg::Pcg64;
 use std::collections::VecDeque;
 use std::sync::Arc;
 
+mod route;
+use route::RouteState;
+pub use route::RouteStats;
+
 /// What one control step produced.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct StepOutcome {
@@ -87,6 +91,8 @@ pub struct NavEnv {
     perturb: Perturbation,
     /// With observation latency k: the last k + 1 observations, oldest first.
     history: VecDeque<Vec<f32>>,
+    /// `EnvConfig::subgoals`: this episode's planned path and subgoal rule.
+    route: Option<RouteState>,
 }
 
 impl NavEnv {
@@ -157,6 +163,7 @@ impl NavEnv {
             robust_rng: Pcg64::seed_from_u64(seed ^ ROBUSTNESS_STREAM),
             perturb: Perturbation::default(),
             history: VecDeque::new(),
+            route: None,
         };
         env.reset();
         env
@@ -329,6 +336,10 @@ impl NavEnv {
         self.done = None;
         self.active = self.room.timed_active(0);
         self.goal_distance = dist(start.position(), goal);
+        self.route = self.cfg.subgoals.as_ref().map(|c| {
+            let scale = self.radius / self.cfg.robot_radius;
+            RouteState::begin(c, &self.room, self.radius, scale, start, goal)
+        });
         self.update_scan();
         self.history.clear();
         if self.perturb.latency_steps > 0 {
@@ -441,24 +452,32 @@ impl NavEnv {
             collided = collided || self.room.body_collides(&self.body, self.pose, active);
         }
 
-        let rw = &self.cfg.reward;
-        let d_prev = self.goal_distance;
+        let d_prev = self.progress_distance();
         self.goal_distance = dist(self.pose.position(), self.goal);
+        self.update_scan();
+        let d_next = match self.route.as_mut() {
+            Some(route) => {
+                let (pose, scan, angles) = (self.pose, &self.scan, self.lidar.beam_angles());
+                let max = self.cfg.lidar.range_max as f32;
+                let left = route
+                    .step(&self.room, pose, self.cfg.dt, || scan_points(pose, scan, angles, max));
+                if route.follow() { left } else { self.goal_distance }
+            }
+            None => self.goal_distance,
+        };
+        let rw = &self.cfg.reward;
         let (reward, done) = if collided {
             (rw.collision, Some(Outcome::Collision))
         } else if self.goal_distance <= self.cfg.goal_tolerance {
             (rw.success, Some(Outcome::Success))
         } else {
             let change = omega_prev.map_or(0.0, |w| (self.omega - w).abs());
-            let r = rw.progress * (d_prev - self.goal_distance)
-                - rw.time_penalty
-                - rw.omega_change * change;
+            let r = rw.progress * (d_prev - d_next) - rw.time_penalty - rw.omega_change * change;
             (r, (self.steps >= self.cfg.max_steps).then_some(Outcome::Timeout))
         };
         let reward = reward as f32;
         self.episode_return += reward as f64;
         self.done = done;
-        self.update_scan();
         self.remember_obs();
         StepOutcome { reward, done }
     }
@@ -496,8 +515,9 @@ impl NavEnv {
         let beams = self.scan.len();
         out[..beams].copy_from_slice(&self.scan);
         let extra = &mut out[beams..];
-        extra[obs::GOAL_DISTANCE] = self.goal_distance as f32;
-        extra[obs::GOAL_ANGLE] = self.goal_angle() as f32;
+        let goal = self.observed_goal();
+        extra[obs::GOAL_DISTANCE] = dist(self.pose.position(), goal) as f32;
+        extra[obs::GOAL_ANGLE] = bearing(self.pose, goal) as f32;
         extra[obs::LINEAR_VELOCITY] = self.v as f32;
         extra[obs::ANGULAR_VELOCITY] = self.omega as f32;
         if self.cfg.radius_input {
@@ -514,9 +534,47 @@ impl NavEnv {
 
     /// Bearing of the goal in the robot frame (rad, (−π, π], left positive).
     pub fn goal_angle(&self) -> f64 {
-        let [x, y] = self.pose.to_local(self.goal);
-        let a = y.atan2(x);
-        if a <= -std::f64::consts::PI { std::f64::consts::PI } else { a }
+        bearing(self.pose, self.goal)
+    }
+
+    /// The goal the agent observes: the subgoal when following a planned path
+    /// (`env.subgoals`), else the goal.
+    pub fn observed_goal(&self) -> [f64; 2] {
+        match &self.route {
+            Some(r) if r.follow() => r.subgoal(),
+            _ => self.goal,
+        }
+    }
+
+    /// The reward's d_t: the path left along the plan when following one, else the straight
+    /// distance to the goal.
+    fn progress_distance(&self) -> f64 {
+        match &self.route {
+            Some(r) if r.follow() => r.remaining_m(),
+            _ => self.goal_distance,
+        }
+    }
+
+    /// The rotation shim's command (`env.subgoals.rotation_shim`): after each plan, turn in
+    /// place towards the subgoal until it is within the shim's angle; `None` while the agent
+    /// drives (and always without subgoals). Callers use it instead of the policy's command.
+    pub fn shim_command(&self) -> Option<(f64, f64)> {
+        match &self.route {
+            Some(r) if r.follow() && self.done.is_none() => {
+                r.shim_command(self.pose, self.cfg.omega_max)
+            }
+            _ => None,
+        }
+    }
+
+    /// What this episode's route came to (`env.subgoals`); `None` without subgoals.
+    pub fn route_stats(&self) -> Option<RouteStats> {
+        self.route.as_ref().map(RouteState::stats)
+    }
+
+    /// The current plan (`env.subgoals`), when there is one.
+    pub fn planned_path(&self) -> Option<&crate::planner::PlannedPath> {
+        self.route.as_ref().and_then(RouteState::path)
     }
 
     /// Distance from the robot's centre to the goal (m).
@@ -603,6 +661,25 @@ impl NavEnv {
 
 fn dist(a: [f64; 2], b: [f64; 2]) -> f64 {
     (a[0] - b[0]).hypot(a[1] - b[1])
+}
+
+/// Bearing of `p` seen from `pose` (rad, (−π, π], left positive).
+fn bearing(pose: Pose2, p: [f64; 2]) -> f64 {
+    let [x, y] = pose.to_local(p);
+    let a = y.atan2(x);
+    if a <= -std::f64::consts::PI { std::f64::consts::PI } else { a }
+}
+
+/// The returns of `scan` (beams at `angles` from `pose`, `max` for none) as room points.
+fn scan_points(pose: Pose2, scan: &[f32], angles: &[f64], max: f32) -> Vec<[f64; 2]> {
+    scan.iter()
+        .zip(angles)
+        .filter(|(r, _)| **r > 0.0 && **r < max)
+        .map(|(&r, &a)| {
+            let (s, c) = (pose.yaw + a).sin_cos();
+            [pose.x + r as f64 * c, pose.y + r as f64 * s]
+        })
+        .collect()
 }
 
 /// The unicycle's pose after driving `(v, ω)` for `t` seconds from `p`, in closed form.

@@ -65,6 +65,11 @@ pub struct EnvConfig {
     /// agent's own LiDAR.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sensor: Option<crate::SensorSpec>,
+    /// Long tasks along a planned path (`[env.subgoals]`, [`crate::subgoal`]): each episode
+    /// plans a path for the robot's size and the agent observes the lookahead point on it as
+    /// its goal; the reward's progress is the path left. Absent: the paper's mapless task.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub subgoals: Option<crate::subgoal::SubgoalConfig>,
     /// The reward function.
     pub reward: RewardConfig,
     /// LiDAR dropout, observation latency, actuation noise and control-period jitter
@@ -107,6 +112,7 @@ impl Default for EnvConfig {
             collision_substep: 0.02,
             lidar: LidarConfig::default(),
             sensor: None,
+            subgoals: None,
             reward: RewardConfig::default(),
             robustness: crate::RobustnessConfig::default(),
         }

@@ -104,6 +104,21 @@ impl ClearanceMap {
         &self.raster
     }
 
+    /// This map with the cells holding `points` occupied as well: a scan's returns, so that a
+    /// replan goes round a door that has closed or a person standing in the way.
+    pub fn with_points(&self, points: &[Point]) -> ClearanceMap {
+        let r = &self.raster;
+        let mut occupied: Vec<bool> = self.dist.iter().map(|&d| d == 0.0).collect();
+        for &p in points {
+            if let Some((i, j)) = r.cell_of(p) {
+                occupied[r.index(i, j)] = true;
+            }
+        }
+        let dist =
+            distance_transform(&occupied, r.n).into_iter().map(|d| d.sqrt() * r.res).collect();
+        ClearanceMap { raster: r.clone(), dist }
+    }
+
     /// Each cell centre's distance (m) to the nearest occupied centre, by flat index.
     pub(crate) fn distances(&self) -> &[f64] {
         &self.dist

@@ -291,6 +291,13 @@ fn pull_string(
     out
 }
 
+/// True when a disc of about `radius` can slide from `a` to `b` on `map`: every cell on the way
+/// has its centre at least `radius` from the nearest occupied centre (within a cell diagonal
+/// of exact). The subgoal rule keeps its subgoal in sight with it.
+pub fn line_of_sight(map: &ClearanceMap, a: Point, b: Point, radius: f64) -> bool {
+    segment_clear(map, a, b, radius)
+}
+
 /// True when every point of the segment `a`–`b`, sampled every quarter cell, lies in a cell
 /// with clearance at least `want`.
 fn segment_clear(map: &ClearanceMap, a: Point, b: Point, want: f64) -> bool {

@@ -149,6 +149,18 @@ impl PathFollower {
     /// `2L + 1` m ahead, so a path that folds back past a wall is not jumped), and the subgoal
     /// `lookahead` further on.
     pub fn update(&mut self, p: Point, lookahead: f64) -> Lookahead {
+        self.update_seeing(p, lookahead, &|_, _| true)
+    }
+
+    /// [`PathFollower::update`], with the subgoal drawn back along the path until `visible`
+    /// says the straight line from the robot to it is clear: round a corner the lookahead point
+    /// is past, the robot heads for the corner rather than cutting it.
+    pub fn update_seeing(
+        &mut self,
+        p: Point,
+        lookahead: f64,
+        visible: &dyn Fn(Point, Point) -> bool,
+    ) -> Lookahead {
         let pts = &self.path.points;
         let total = *self.cum.last().unwrap();
         let (lo, hi) = (self.s - 1.0, self.s + 2.0 * lookahead + 1.0);
@@ -178,8 +190,18 @@ impl PathFollower {
         self.s = s;
         let goal = *pts.last().unwrap();
         let left = total - s;
-        let final_goal = left <= lookahead || dist(p, goal) <= lookahead;
-        let subgoal = if final_goal { goal } else { self.point_at(s + lookahead) };
+        let mut final_goal = left <= lookahead || dist(p, goal) <= lookahead;
+        let mut subgoal = if final_goal { goal } else { self.point_at(s + lookahead) };
+        if !visible(p, subgoal) {
+            // Bisect for the farthest visible point between the projection and the subgoal.
+            let (mut lo, mut hi) = (s, if final_goal { total } else { s + lookahead });
+            for _ in 0..8 {
+                let mid = 0.5 * (lo + hi);
+                if visible(p, self.point_at(mid)) { lo = mid } else { hi = mid }
+            }
+            subgoal = self.point_at(lo);
+            final_goal = false;
+        }
         Lookahead { subgoal, progress_m: s, remaining_m: left + off, off_path_m: off, final_goal }
     }
 }
@@ -277,13 +299,23 @@ impl RouteGuide {
     /// whether to replan. Progress counts when the projection moves on by a tenth of the
     /// robot's lookahead (so creeping in place is no progress).
     pub fn update(&mut self, pose: Pose2, dt: f64) -> Guidance {
+        self.update_seeing(pose, dt, &|_, _| true)
+    }
+
+    /// [`RouteGuide::update`] with the subgoal kept in sight ([`PathFollower::update_seeing`]).
+    pub fn update_seeing(
+        &mut self,
+        pose: Pose2,
+        dt: f64,
+        visible: &dyn Fn(Point, Point) -> bool,
+    ) -> Guidance {
         let p = pose.position();
         let l = self.lookahead_m();
         let Some(f) = self.follower.as_mut() else {
             self.subgoal = self.goal;
             return Guidance { subgoal: self.goal, remaining_m: dist(p, self.goal), replan: None };
         };
-        let la = f.update(p, l);
+        let la = f.update_seeing(p, l, visible);
         self.subgoal = la.subgoal;
         if la.progress_m > self.best_progress + 0.1 * l {
             self.best_progress = la.progress_m;

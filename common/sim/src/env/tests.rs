@@ -764,3 +764,113 @@ fn the_omega_change_penalty_charges_each_change_of_the_angular_command() {
     assert!((plain[1] - smooth[1] - 0.1).abs() < 1e-6, "{plain:?} {smooth:?}");
     assert_eq!(smooth[2], plain[2]);
 }
+
+/// A 6 m room split at x = 0 by a wall with a 0.8 m door near the top (y = 2).
+fn door_room() -> Arc<Room> {
+    let mut spec = RoomSpec::empty("door", 6.0);
+    spec.wall_segments = vec![
+        crate::WallSegment { from: [0.0, 3.0], to: [0.0, 2.4], thickness: Some(0.1) },
+        crate::WallSegment { from: [0.0, 1.6], to: [0.0, -3.0], thickness: Some(0.1) },
+    ];
+    Arc::new(Room::new(spec))
+}
+
+fn with_subgoals() -> EnvConfig {
+    EnvConfig { subgoals: Some(crate::subgoal::SubgoalConfig::default()), ..cfg() }
+}
+
+/// Heads for the goal the observation gives: turn towards it, drive when roughly facing it.
+fn seek(obs: &[f32]) -> (f64, f64) {
+    let a = obs[obs.len() - 3] as f64;
+    (if a.abs() < 0.3 { 0.5 } else { 0.0 }, (2.0 * a).clamp(-FRAC_PI_2, FRAC_PI_2))
+}
+
+fn drive(env: &mut NavEnv) -> Outcome {
+    let mut obs = vec![0.0; env.obs_dim()];
+    loop {
+        env.write_obs(&mut obs);
+        let (v, w) = env.shim_command().unwrap_or_else(|| seek(&obs));
+        if let Some(o) = env.step(v, w).done {
+            return o;
+        }
+    }
+}
+
+#[test]
+fn with_subgoals_a_goal_behind_a_wall_is_reached_through_the_door() {
+    let (start, goal) = (Pose2::new(-2.0, -1.0, 0.0), [2.0, -1.0]);
+    // Mapless, the seeker drives straight into the wall.
+    let mut env = NavEnv::new(door_room(), &cfg(), 1);
+    env.reset_to(start, goal);
+    assert_eq!(drive(&mut env), Outcome::Collision);
+    assert!(env.route_stats().is_none() && env.planned_path().is_none());
+    // Following the plan it goes through the door.
+    let mut env = NavEnv::new(door_room(), &with_subgoals(), 1);
+    env.reset_to(start, goal);
+    let path = env.planned_path().unwrap().clone();
+    assert!(path.length_m > 2.0 * 2f64.hypot(3.0), "{path:?}");
+    let mut obs = vec![0.0; env.obs_dim()];
+    env.write_obs(&mut obs);
+    let sub = env.observed_goal();
+    assert!(dist(sub, start.position()) <= 1.5 + 1e-9 && sub != goal, "{sub:?}");
+    assert!((obs[obs.len() - 4] as f64 - dist(sub, start.position())).abs() < 1e-5);
+    assert_eq!(drive(&mut env), Outcome::Success);
+    let stats = env.route_stats().unwrap();
+    assert_eq!(stats.planned_length_m, Some(path.length_m));
+    assert!(stats.follow && !stats.blocked);
+}
+
+#[test]
+fn with_subgoals_progress_is_paid_along_the_path() {
+    // Facing the goal straight through the wall: driving at it shortens the straight line
+    // but not the path, which goes up to the door first.
+    let (start, goal) = (Pose2::new(-2.0, -1.0, 0.0), [2.0, -1.0]);
+    let no_shim = crate::subgoal::SubgoalConfig {
+        rotation_shim: false,
+        ..crate::subgoal::SubgoalConfig::default()
+    };
+    let mut env = NavEnv::new(door_room(), &EnvConfig { subgoals: Some(no_shim), ..cfg() }, 1);
+    env.reset_to(start, goal);
+    let into_the_wall = env.step(0.5, 0.0).reward;
+    let mut plain = NavEnv::new(door_room(), &cfg(), 1);
+    plain.reset_to(start, goal);
+    let mapless = plain.step(0.5, 0.0).reward;
+    assert!((mapless - 0.19).abs() < 1e-6);
+    assert!(into_the_wall < 0.1, "{into_the_wall}");
+    // Towards the door: paid nearly in full.
+    let mut env = NavEnv::new(door_room(), &EnvConfig { subgoals: Some(no_shim2()), ..cfg() }, 1);
+    let up = Pose2::new(-2.0, -1.0, (3.0f64).atan2(2.0));
+    env.reset_to(up, goal);
+    let along = env.step(0.5, 0.0).reward;
+    assert!(along > 0.15, "{along}");
+}
+
+fn no_shim2() -> crate::subgoal::SubgoalConfig {
+    crate::subgoal::SubgoalConfig { rotation_shim: false, ..Default::default() }
+}
+
+#[test]
+fn the_rotation_shim_turns_a_robot_facing_away_and_mapless_follow_keeps_the_goal() {
+    let mut env = NavEnv::new(door_room(), &with_subgoals(), 1);
+    env.reset_to(Pose2::new(-2.0, -1.0, -2.0), [2.0, -1.0]);
+    let (v, w) = env.shim_command().unwrap();
+    assert_eq!(v, 0.0);
+    assert_eq!(w.abs(), FRAC_PI_2);
+    // follow = false: the plan is made for the reports, the agent sees the goal.
+    let report_only = crate::subgoal::SubgoalConfig { follow: false, ..Default::default() };
+    let mut env = NavEnv::new(door_room(), &EnvConfig { subgoals: Some(report_only), ..cfg() }, 1);
+    env.reset_to(Pose2::new(-2.0, -1.0, -2.0), [2.0, -1.0]);
+    assert_eq!(env.shim_command(), None);
+    assert_eq!(env.observed_goal(), [2.0, -1.0]);
+    assert!(env.route_stats().unwrap().planned_length_m.unwrap() > 7.0);
+}
+
+#[test]
+fn a_robot_too_big_for_the_door_is_blocked_and_heads_for_the_goal() {
+    let big = Footprint::circle(0.45);
+    let mut env = NavEnv::with_footprint(door_room(), &with_subgoals(), 1, big);
+    env.reset_to(Pose2::new(-2.0, -1.0, 0.0), [2.0, -1.0]);
+    let stats = env.route_stats().unwrap();
+    assert!(stats.blocked && stats.planned_length_m.is_none());
+    assert_eq!(env.observed_goal(), [2.0, -1.0]);
+}

@@ -99,3 +99,15 @@ fn a_point_off_the_raster_or_in_a_wall_joins_nothing() {
     assert_eq!(reach.component_at([10.0, 0.0], 0.1), None);
     assert_eq!(reach.component_at([0.0, 2.0], 0.1), None);
 }
+
+#[test]
+fn points_added_to_a_map_close_a_gap() {
+    let map = ClearanceMap::of_room(&split_room(1.0));
+    let (left, right) = ([-1.5, 1.0], [1.5, 1.0]);
+    assert!(map.reach(0.2).connected(left, right, 0.1));
+    // A person standing in the gap, seen as a few returns.
+    let person: Vec<Point> = (-4..=4).map(|k| [-0.05, k as f64 * 0.1]).collect();
+    let closed = map.with_points(&person);
+    assert!(!closed.reach(0.2).connected(left, right, 0.1));
+    assert_eq!(map.with_points(&[]).dist, map.dist);
+}

@@ -123,3 +123,21 @@ fn bad_keys_are_named() {
     assert_eq!(bad.check().unwrap_err().0, "env.subgoals.planner.clearance_weight");
     assert!(SubgoalConfig::default().check().is_ok());
 }
+
+#[test]
+fn a_subgoal_past_a_corner_is_drawn_back_into_sight() {
+    let mut f = PathFollower::new(ell());
+    // A wall hides everything with x > 3.9 and y > 0.3 from the robot.
+    let hidden = |q: Point| q[0] > 3.9 && q[1] > 0.3;
+    let visible = move |a: Point, b: Point| {
+        (0..=100).all(|k| {
+            let t = k as f64 / 100.0;
+            !hidden([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])])
+        })
+    };
+    let la = f.update_seeing([3.0, -0.5], 1.5, &visible);
+    // The pure lookahead (4.0, 0.5) is behind the corner; the subgoal stays on the path, in
+    // sight, short of it.
+    assert!(visible([3.0, -0.5], la.subgoal), "{la:?}");
+    assert!(la.subgoal[0] > 3.9 && la.subgoal[1] <= 0.3 && !la.final_goal, "{la:?}");
+}
