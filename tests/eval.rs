@@ -225,6 +225,65 @@ fn bad_input_fails_with_a_clear_message() {
         "0.5:0.2:0.1",
     ]));
     assert!(e.contains("--radii") && e.contains("START:STOP:STEP"), "{e}");
+
+    // Subgoal options: a lookahead must be a length, and is for planned routes only.
+    let ck = ckpt.to_str().unwrap();
+    let ckpt_ok = dir.path().join("ok");
+    write_checkpoint(&ckpt_ok, &tiny_config());
+    let ok = ckpt_ok.to_str().unwrap();
+    let e = stderr(&eval(&["--checkpoint", ok, "--tasks", "long", "--lookahead", "0"]));
+    assert!(e.contains("--lookahead") && e.contains("above 0"), "{e}");
+    let e = stderr(&eval(&["--checkpoint", ok, "--lookahead", "1.0"]));
+    assert!(e.contains("--lookahead") && e.contains("--subgoals planner"), "{e}");
+    let e = stderr(&eval(&["--checkpoint", ck, "--tasks", "medium"]));
+    assert!(e.contains("--tasks") && e.contains("long"), "{e}");
+}
+
+/// `--tasks long` plans a path for each task: the rows carry the route figures, and with
+/// `--subgoals none` the agent is mapless while the plan is still measured.
+#[test]
+fn long_tasks_report_planned_routes() {
+    let dir = tempfile::tempdir().unwrap();
+    let ckpt = dir.path().join("ckpt");
+    write_checkpoint(&ckpt, &tiny_config());
+    let ck = ckpt.to_str().unwrap();
+    for (mode, replans) in [("planner", true), ("none", false)] {
+        let out = eval(&[
+            "--checkpoint",
+            ck,
+            "--room",
+            "env3",
+            "--tasks",
+            "long",
+            "--subgoals",
+            mode,
+            "--episodes",
+            "6",
+            "--json",
+        ]);
+        let rows = json(&out);
+        assert_eq!(rows.len(), 1);
+        let r = &rows[0];
+        assert_eq!(r["subgoals"], mode, "{r}");
+        assert!(r["path_length_m"].as_f64().unwrap() >= 5.0, "{r}");
+        assert!(r["blocked_rate"].as_f64().is_some() && r["replans"].as_f64().is_some(), "{r}");
+        if !replans {
+            assert_eq!(r["replans"], 0.0, "mapless never replans: {r}");
+        }
+    }
+    // Local tasks carry no route figures.
+    let out = eval(&[
+        "--checkpoint",
+        ck,
+        "--room",
+        "env3",
+        "--tasks",
+        "local",
+        "--episodes",
+        "4",
+        "--json",
+    ]);
+    assert!(json(&out)[0].get("subgoals").is_none());
 }
 
 /// `dvnav train` evaluates every `learner.eval_every_updates` updates: rows per curriculum room

@@ -475,6 +475,7 @@ mod tests {
             mean_path_length_m: None,
             reversal_rate: f64::NAN,
             mean_abs_domega: f64::NAN,
+            routes: None,
         };
         let room = |name: &str| RoomSummary {
             room: name.into(),

@@ -115,9 +115,46 @@ pub struct EvalArgs {
     /// axle centre.
     #[arg(long, value_name = "FILE")]
     pub sensor: Option<PathBuf>,
+    /// Random tasks of a kind: `local` (2-5 m apart, path at most 1.5× the straight line: the
+    /// held-out suite's local tasks) or `long` (any goal the robot can reach 5-10 m away in a
+    /// straight line, however long the way round, no path-ratio bound; followed along a
+    /// planned path unless --subgoals none). --min-distance, --max-distance and --max-path-ratio override
+    /// the kind's bounds. Default: the checkpoint's own task bounds.
+    #[arg(long, value_enum, value_name = "KIND")]
+    pub tasks: Option<Tasks>,
+    /// `planner`: plan a path for each robot's size and feed the agent a lookahead point on
+    /// it as its goal (pure pursuit, replans, the rotation shim); `none`: the agent sees only
+    /// the final goal (mapless; with --tasks long the path is still planned, for path_ratio).
+    /// Default: planner for long tasks, none otherwise.
+    #[arg(long, value_enum, value_name = "MODE")]
+    pub subgoals: Option<Subgoals>,
+    /// With subgoals: the lookahead L (m) for the meta robot (times μ for other sizes).
+    #[arg(long, value_name = "M")]
+    pub lookahead: Option<f64>,
+    /// With subgoals: no rotation shim (the agent drives from the first cycle after a plan).
+    #[arg(long)]
+    pub no_rotation_shim: bool,
     /// Episodes stepped at once; the policy sees them as one batch.
     #[arg(long, default_value_t = 64)]
     pub batch: usize,
+}
+
+/// `--tasks`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum Tasks {
+    /// 2-5 m apart, shortest path at most 1.5× the straight line.
+    Local,
+    /// At least 5 m apart, any route.
+    Long,
+}
+
+/// `--subgoals`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum Subgoals {
+    /// Follow the planner's path by lookahead subgoals.
+    Planner,
+    /// The final goal only (mapless).
+    None,
 }
 
 /// Which scenario.
@@ -197,6 +234,46 @@ fn parse_pair(s: &str) -> Result<[f64; 2], String> {
 fn eval_env(args: &EvalArgs, cfg: &Config) -> anyhow::Result<dvnav_config::EnvConfig> {
     let mut env = cfg.env.clone();
     env.lidar.noise_std = args.noise_std;
+    match args.tasks {
+        Some(Tasks::Local) => {
+            env.min_start_goal_distance = 2.0;
+            env.max_start_goal_distance = 5.0;
+            env.max_path_ratio = 1.5;
+        }
+        Some(Tasks::Long) => {
+            env.min_start_goal_distance = 5.0;
+            // Building-sized maps have goals 50 m away: beyond T_max at v_max (400 cycles
+            // make 40 m). 10 m in a straight line keeps every route drivable in time.
+            env.max_start_goal_distance = 10.0;
+            env.max_path_ratio = 0.0;
+            env.reachable_tasks = true;
+        }
+        None => {}
+    }
+    let subgoals = args.subgoals.unwrap_or(match args.tasks {
+        Some(Tasks::Long) => Subgoals::Planner,
+        _ => Subgoals::None,
+    });
+    let plan = subgoals == Subgoals::Planner || args.tasks == Some(Tasks::Long);
+    env.subgoals = plan.then(|| {
+        let base = env.subgoals.clone().unwrap_or_default();
+        dvnav_sim::subgoal::SubgoalConfig {
+            follow: subgoals == Subgoals::Planner,
+            lookahead_m: args.lookahead.unwrap_or(base.lookahead_m),
+            rotation_shim: base.rotation_shim && !args.no_rotation_shim,
+            ..base
+        }
+    });
+    anyhow::ensure!(
+        plan || (args.lookahead.is_none() && !args.no_rotation_shim),
+        "--lookahead and --no-rotation-shim are for --subgoals planner (or --tasks long)"
+    );
+    if let Some(s) = &env.subgoals {
+        s.check().map_err(|(k, r)| {
+            let k = if k.ends_with("lookahead_m") { "--lookahead".to_string() } else { k };
+            anyhow::anyhow!("{k}: {r}")
+        })?;
+    }
     if let Some(d) = args.min_distance {
         env.min_start_goal_distance = d;
     }

@@ -97,6 +97,17 @@ pub fn table(rows: &Rows, mus: &[f64]) -> String {
                     None => "-".into(),
                 };
                 let rt = &r.rates;
+                let route = match &rt.routes {
+                    Some(x) => format!(
+                        "{route}; subgoals {}, planned {} m, ratio {}, replans {:.2}, blocked {}",
+                        x.subgoals,
+                        num(x.path_length_m, 1),
+                        num(x.path_ratio, 2),
+                        x.replans,
+                        pct(x.blocked_rate)
+                    ),
+                    None => route,
+                };
                 let _ = writeln!(
                     s,
                     " {:>8} {:>8} {:>9} {:>8} {:>10} {:>11}  {route}",
@@ -293,6 +304,7 @@ mod tests {
             mean_path_length_m: None,
             reversal_rate: 0.02,
             mean_abs_domega: 0.3,
+            routes: None,
         };
         let rows = Rows::Rooms(vec![RoomSummary {
             room: "env2".into(),

@@ -4,7 +4,7 @@
 
 use super::smoothness::{CommandCounter, CommandStats};
 use dvnav_nav::policy::NavPolicy;
-use dvnav_sim::{NavEnv, Pose2};
+use dvnav_sim::{NavEnv, Pose2, RouteStats};
 use dvnav_sim::{Outcome, score};
 use serde::Serialize;
 
@@ -29,6 +29,10 @@ pub struct EpisodeResult {
     pub score: f64,
     /// Undiscounted sum of rewards.
     pub episode_return: f64,
+    /// The planned route of a long task (`env.subgoals`): its planned length, replans, whether
+    /// it was blocked. Absent without subgoals.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub route: Option<RouteStats>,
     /// How smooth its angular commands were.
     #[serde(skip)]
     pub commands: CommandStats,
@@ -135,6 +139,7 @@ impl Recorder {
             path_length_m: self.path_length,
             score: score(outcome, steps, cfg.max_steps),
             episode_return: env.episode_return(),
+            route: env.route_stats(),
             commands: self.commands.stats(),
             trajectory: self.trajectory,
         };

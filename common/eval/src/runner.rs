@@ -180,6 +180,12 @@ pub fn run_jobs(
                 commands[k] = c;
             }
         }
+        // The rotation shim (env.subgoals) holds a robot that has just been given a plan.
+        for (s, c) in slots.iter().zip(commands.iter_mut()) {
+            if let Some(shim) = s.env.shim_command() {
+                *c = shim;
+            }
+        }
         slots.par_iter_mut().zip(commands.par_iter()).for_each(|(s, &(v, omega))| {
             let out = s.env.step(v, omega);
             s.recorder.record(&s.env, out.reward);

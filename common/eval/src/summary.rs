@@ -29,6 +29,47 @@ pub struct Rates {
     pub reversal_rate: f64,
     /// Mean |Δω| per control cycle over all episodes (rad/s).
     pub mean_abs_domega: f64,
+    /// Over planned routes (long tasks with `env.subgoals`); absent without them.
+    #[serde(flatten)]
+    pub routes: Option<RouteRates>,
+}
+
+/// Route figures over the episodes of long tasks ([`dvnav_sim::RouteStats`]).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct RouteRates {
+    /// `planner`: the agent followed the planner's subgoals; `none`: it saw the final goal
+    /// only (the path was planned for these figures).
+    pub subgoals: &'static str,
+    /// Mean planned path length from the start (m), over episodes with a plan.
+    pub path_length_m: Option<f64>,
+    /// Mean of driven / planned length over the successful episodes with a plan.
+    pub path_ratio: Option<f64>,
+    /// Mean replans per episode.
+    pub replans: f64,
+    /// Share of episodes in which some plan found no path.
+    pub blocked_rate: f64,
+}
+
+/// [`RouteRates`] of `episodes`, when they planned routes.
+fn route_rates(episodes: &[EpisodeResult]) -> Option<RouteRates> {
+    let routes: Vec<(&EpisodeResult, dvnav_sim::RouteStats)> =
+        episodes.iter().filter_map(|e| e.route.map(|r| (e, r))).collect();
+    let first = routes.first()?.1;
+    let n = routes.len() as f64;
+    let mean = |xs: &[f64]| (!xs.is_empty()).then(|| xs.iter().sum::<f64>() / xs.len() as f64);
+    let planned: Vec<f64> = routes.iter().filter_map(|(_, r)| r.planned_length_m).collect();
+    let ratios: Vec<f64> = routes
+        .iter()
+        .filter(|(e, _)| e.outcome == Outcome::Success)
+        .filter_map(|(e, r)| r.planned_length_m.filter(|&p| p > 0.0).map(|p| e.path_length_m / p))
+        .collect();
+    Some(RouteRates {
+        subgoals: if first.follow { "planner" } else { "none" },
+        path_length_m: mean(&planned),
+        path_ratio: mean(&ratios),
+        replans: routes.iter().map(|(_, r)| r.replans as f64).sum::<f64>() / n,
+        blocked_rate: routes.iter().filter(|(_, r)| r.blocked).count() as f64 / n,
+    })
 }
 
 /// Rates and means of `episodes`.
@@ -51,6 +92,7 @@ pub fn aggregate(episodes: &[EpisodeResult]) -> Rates {
         mean_path_length_m: mean_ok(|e| e.path_length_m),
         reversal_rate: commands.reversal_rate(),
         mean_abs_domega: commands.mean_abs_domega(),
+        routes: route_rates(episodes),
     }
 }
 
@@ -157,6 +199,7 @@ mod tests {
             path_length_m: steps as f64 * 0.1,
             score: dvnav_sim::score(outcome, steps, 400),
             episode_return: 0.0,
+            route: None,
             commands: CommandStats {
                 transitions: steps,
                 reversals: steps / 10,

@@ -69,7 +69,9 @@ impl RouteState {
     ) -> f64 {
         let g = self.guide.update_seeing(pose, dt, &sight(room, self.radius));
         let reached = g.remaining_m;
-        if let Some(why) = g.replan {
+        // Planned for the reports only, the first plan stands: the agent never sees a replan.
+        let replan = if self.stats.follow { g.replan } else { None };
+        if let Some(why) = replan {
             let cfg = self.guide.config().planner.clone();
             let goal = self.guide.goal();
             let found = match why {
