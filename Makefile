@@ -149,6 +149,7 @@ bench: release
 	./target/release/dvnav bench learner --batch 256 --torch --json
 	./target/release/dvnav bench learner --batch 128 --torch --json
 	./target/release/dvnav bench serve --json
+	./target/release/dvnav bench plan --json
 
 # Python with PyTorch for the comparison in `make bench` (optional, ~3 GB download).
 torch-venv:

@@ -84,6 +84,22 @@ enum BenchWhat {
         #[arg(long)]
         json: bool,
     },
+    /// Path planning time (`dvnav_sim::planner`, one thread) for random starts and goals
+    /// anywhere in a room that the robot can drive between: p50, p99 and max per plan.
+    Plan {
+        /// The room: a built-in name, a room file or an occupancy-grid map.
+        #[arg(long, default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/maps/willow.yaml"))]
+        room: String,
+        /// The robot's radius (m).
+        #[arg(long, default_value_t = 0.2)]
+        radius: f64,
+        /// Plans timed.
+        #[arg(long, default_value_t = 1_000)]
+        plans: usize,
+        /// Print one JSON object.
+        #[arg(long)]
+        json: bool,
+    },
     /// DVST controller latency at batch 1 (`dvnav serve`): `Act` round trips over loopback
     /// gRPC, and the same commands in-process (checks, DVST and the policy, no network), with
     /// the meta agent's scan layout and with a 1,081-reading LaserScan; then a fleet of robots
@@ -252,6 +268,24 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
                 );
             }
         }
+        BenchWhat::Plan { room, radius, plans, json } => {
+            let r = bench_plan(&room, radius, plans)?;
+            if json {
+                println!("{r}");
+            } else {
+                println!(
+                    "planning in {} ({} cells of {} m), radius {radius} m: p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms over {plans} plans (mean path {:.1} m, {} failed)",
+                    r["room"].as_str().unwrap_or("?"),
+                    r["cells_per_side"],
+                    r["cell_m"],
+                    r["p50_ms"].as_f64().unwrap_or(0.0),
+                    r["p99_ms"].as_f64().unwrap_or(0.0),
+                    r["max_ms"].as_f64().unwrap_or(0.0),
+                    r["mean_path_m"].as_f64().unwrap_or(0.0),
+                    r["failed"],
+                );
+            }
+        }
         BenchWhat::Serve { checkpoint, footprint, calls, robots, rate_hz, seconds, json } => {
             let repo = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
             let checkpoint = checkpoint.unwrap_or_else(|| repo.join("models/meta-r0.2"));
@@ -322,6 +356,52 @@ fn bench_env(steps: usize, room: &str) -> anyhow::Result<serde_json::Value> {
         "envs": n,
         "room": room.name(),
         "beams": cfg.env.lidar.beams,
+    }))
+}
+
+/// Times [`dvnav_sim::planner::plan`] between random reachable starts and goals (drawn as an
+/// environment draws its tasks, at least 1 m apart, any distance).
+fn bench_plan(room: &str, radius: f64, plans: usize) -> anyhow::Result<serde_json::Value> {
+    use dvnav_sim::planner::{PlannerConfig, plan};
+    use dvnav_sim::{EnvConfig, Footprint, NavEnv, Room};
+    use std::time::Instant;
+    anyhow::ensure!(plans > 0, "--plans must be at least 1");
+    anyhow::ensure!(radius > 0.0 && radius.is_finite(), "--radius must be above 0 m");
+    let room = Room::load(room)?
+        .into_iter()
+        .next()
+        .ok_or_else(|| anyhow::anyhow!("no room to plan in"))?;
+    let map = room.clearance_map();
+    let mut env =
+        NavEnv::with_footprint(room.clone(), &EnvConfig::default(), 1, Footprint::circle(radius));
+    let cfg = PlannerConfig::default();
+    let (mut times, mut lengths, mut failed) = (Vec::with_capacity(plans), Vec::new(), 0usize);
+    for _ in 0..plans {
+        env.reset();
+        let (a, b) = (env.start().position(), env.goal());
+        let t = Instant::now();
+        let out = plan(map, radius, a, b, &cfg);
+        times.push(t.elapsed().as_secs_f64() * 1e3);
+        match out {
+            Ok(p) => lengths.push(p.length_m),
+            Err(_) => failed += 1,
+        }
+    }
+    times.sort_by(f64::total_cmp);
+    let pct = |q: f64| times[((times.len() - 1) as f64 * q).round() as usize];
+    Ok(serde_json::json!({
+        "room": room.name(),
+        "radius_m": radius,
+        "cells_per_side": map.raster().n,
+        "cell_m": map.raster().res,
+        "plans": plans,
+        "p50_ms": pct(0.5),
+        "p99_ms": pct(0.99),
+        "max_ms": times[times.len() - 1],
+        "mean_ms": times.iter().sum::<f64>() / times.len() as f64,
+        "mean_path_m": lengths.iter().sum::<f64>() / lengths.len().max(1) as f64,
+        "failed": failed,
+        "threads": 1,
     }))
 }
 
