@@ -8,6 +8,9 @@
   and goal 2-5 m apart, a collision-free path at most 1.5x the straight line.
 - Each twice: clean, and with LiDAR noise σ = 0.02 m, 5 % beam dropout and one cycle of
   observation latency.
+- Long tasks (issue 28): goals 5-10 m away by any route, in the generated kinds (radii up to
+  0.6 m) and the maps, followed along the planner's path (`--subgoals planner`) and mapless
+  (`--subgoals none`, the path planned only for its length), clean and noisy.
 - The maps again through each real sensor of sensors/ (`dvnav eval --sensor`): the scan that
   sensor's driver would publish from where it is mounted, resampled to the meta agent's beams as
   `dvnav serve` does (clean: the sensor's own noise only).
@@ -57,6 +60,10 @@ def pool(rows):
 
         pooled[radius] = {
             "episodes": n,
+            "path_length_m": mean("path_length_m"),
+            "path_ratio": mean("path_ratio"),
+            "replans": mean("replans"),
+            "blocked_rate": mean("blocked_rate"),
             "success_rate": mean("success_rate"),
             "collision_rate": mean("collision_rate"),
             "timeout_rate": mean("timeout_rate"),
@@ -78,13 +85,16 @@ def main():
     p.add_argument("--map-radii", default="0.2,0.3,0.4")
     p.add_argument("--map-episodes", type=int, default=50)
     p.add_argument("--noise", default="clean,noisy")
+    p.add_argument("--tasks", default="local,long", help="local (the original suite) and/or long (issue 28)")
+    p.add_argument("--long-radii", default="0.2,0.3,0.4,0.5,0.6", help="radii of the generated long-task suite")
     p.add_argument("--sensors", default="sensors/*.toml", help="glob of sensor files for the maps suite ('' for none)")
     p.add_argument("--out", help="write the pooled figures as JSON here")
     a = p.parse_args()
 
     started = time.time()
     suites = []
-    for noise in a.noise.split(","):
+    tasks = a.tasks.split(",")
+    for noise in a.noise.split(",") if "local" in tasks else []:
         for kind in a.kinds.split(","):
             args = ["--checkpoint", a.checkpoint, "--scenario", "generated", "--kind", kind,
                     "--seeds", a.seeds, "--radii", a.radii, "--episodes", str(a.episodes), *NOISE[noise]]
@@ -97,7 +107,20 @@ def main():
             args += ["--radii", a.map_radii, "--episodes", str(a.map_episodes), *LOCAL_TASKS, *NOISE[noise]]
             suites.append({"suite": "maps", "noise": noise, "args": args, "maps": maps})
     maps = sorted(glob.glob(a.maps))
-    for sensor in sorted(glob.glob(a.sensors)) if a.sensors and maps else []:
+    for noise in a.noise.split(",") if "long" in tasks else []:
+        for mode in ["planner", "none"]:
+            long = ["--tasks", "long", "--subgoals", mode]
+            for kind in a.kinds.split(","):
+                args = ["--checkpoint", a.checkpoint, "--scenario", "generated", "--kind", kind, "--seeds", a.seeds,
+                        "--radii", a.long_radii, "--episodes", str(a.episodes), *long, *NOISE[noise]]
+                suites.append({"suite": f"long generated:{kind} subgoals {mode}", "noise": noise, "args": args})
+            if maps:
+                args = ["--checkpoint", a.checkpoint]
+                for m in maps:
+                    args += ["--room", m]
+                args += ["--radii", a.map_radii, "--episodes", str(a.map_episodes), *long, *NOISE[noise]]
+                suites.append({"suite": f"long maps subgoals {mode}", "noise": noise, "args": args, "maps": maps})
+    for sensor in sorted(glob.glob(a.sensors)) if a.sensors and maps and "local" in tasks else []:
         args = ["--checkpoint", a.checkpoint]
         for m in maps:
             args += ["--room", m]
@@ -109,13 +132,16 @@ def main():
         s["command"] = " ".join(["dvnav", "eval", *s["args"], "--json"])
 
     pct = lambda v: "-" if v is None else f"{100 * v:.1f} %"
-    print("| suite | noise | radius (m) | episodes | success | collision | ω reversals | mean abs Δω (rad/s) |")
-    print("|---|---|---|---|---|---|---|---|")
+    num = lambda v, d: "-" if v is None else f"{v:.{d}f}"
+    print("| suite | noise | radius (m) | episodes | success | collision | ω reversals | mean abs Δω (rad/s) "
+          "| planned path (m) | driven / planned | replans | blocked |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for s in suites:
         for radius, f in s["by_radius"].items():
-            domega = "-" if f["mean_abs_domega"] is None else f"{f['mean_abs_domega']:.3f}"
             print(f"| {s['suite']} | {s['noise']} | {radius} | {f['episodes']} | {pct(f['success_rate'])} "
-                  f"| {pct(f['collision_rate'])} | {pct(f['reversal_rate'])} | {domega} |")
+                  f"| {pct(f['collision_rate'])} | {pct(f['reversal_rate'])} | {num(f['mean_abs_domega'], 3)} "
+                  f"| {num(f['path_length_m'], 1)} | {num(f['path_ratio'], 2)} | {num(f['replans'], 2)} "
+                  f"| {pct(f['blocked_rate'])} |")
     print(f"\n{time.time() - started:.0f} s", file=sys.stderr)
     if a.out:
         os.makedirs(os.path.dirname(a.out) or ".", exist_ok=True)

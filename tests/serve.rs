@@ -8,7 +8,9 @@
 use dvnav_nav::dvst::{Dvst, VariedRobot};
 use dvnav_nav::policy::{MetaAgent, NavPolicy};
 use dvnav_proto::controller::v1::controller_client::ControllerClient;
-use dvnav_proto::controller::v1::{ActRequest, InfoRequest, LaserScan, SetFootprintRequest};
+use dvnav_proto::controller::v1::{
+    ActRequest, InfoRequest, LaserScan, Pose2D, SetFootprintRequest, SetRouteRequest,
+};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -490,4 +492,81 @@ async fn many_robots_send_laser_scans_arrive_and_expire_and_bad_input_is_refused
     drop(client);
     let (status, log) = server.stop().await;
     assert!(status.success(), "{status}: {log}");
+}
+
+/// A robot with its own planner hands the controller a route (SetRoute) and sends its pose with
+/// every Act: the agent is given the lookahead point as its goal (the command is the one the
+/// same meta agent gives for that goal), the rotation shim turns a robot facing away, arrival is
+/// at the route's goal, and bad routes are refused naming the field, and counted.
+#[tokio::test]
+async fn a_robot_follows_its_own_planners_route() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start(dir.path(), "footprints/small-0.15.toml", &[]);
+    let mut client = server.client().await;
+    let info = client.info(InfoRequest::default()).await.unwrap().into_inner();
+    assert!(info.lookahead_m > 0.0 && info.rotation_shim && info.refused == 0, "{info:?}");
+    let pose = |x, y, yaw| Some(Pose2D { x, y, yaw });
+    let route = |pts: &[[f64; 2]]| SetRouteRequest {
+        robot_id: "r".into(),
+        poses: pts.iter().map(|p| Pose2D { x: p[0], y: p[1], yaw: 0.0 }).collect(),
+        clear: false,
+    };
+    let set = client.set_route(route(&[[0.0, 0.0], [4.0, 0.0], [4.0, 3.0]])).await.unwrap();
+    let set = set.into_inner();
+    assert_eq!((set.poses, set.length_m), (3, 7.0));
+    assert!((set.lookahead_m - info.lookahead_m * info.mu).abs() < 1e-12, "{set:?}");
+
+    // On a route, an Act without a pose is refused, naming it.
+    let act = |k: usize| ActRequest { robot_id: "r".into(), ..request(k) };
+    invalid(client.act(act(1)).await.unwrap_err(), "pose");
+    invalid(
+        client.act(ActRequest { pose: pose(f64::NAN, 0.0, 0.0), ..act(1) }).await.unwrap_err(),
+        "pose.x",
+    );
+
+    // Facing away: the shim turns it in place, the agent is not asked.
+    let r =
+        client.act(ActRequest { pose: pose(0.5, 0.0, 3.0), ..act(1) }).await.unwrap().into_inner();
+    assert!(r.following_route && r.v == 0.0 && r.omega.abs() == info.omega_max, "{r:?}");
+    // Facing along the path: the agent drives to the lookahead point; the goal fields of the
+    // request are not read, the subgoal's are.
+    let r =
+        client.act(ActRequest { pose: pose(0.5, 0.0, 0.0), ..act(2) }).await.unwrap().into_inner();
+    let l = set.lookahead_m;
+    assert_eq!((r.subgoal_x, r.subgoal_y), (0.5 + l, 0.0), "{r:?}");
+    assert!((r.remaining_m - 6.5).abs() < 1e-12 && !r.replan_wanted && !r.arrived, "{r:?}");
+    let (agent, _) = MetaAgent::load(&repo("models/meta-r0.2")).unwrap();
+    let robot = VariedRobot::load(&repo("footprints/small-0.15.toml")).unwrap();
+    let mut direct = Dvst::new(agent, robot).unwrap().with_scan_range(Some([0.02, 10.0])).unwrap();
+    let q = act(2);
+    let mut obs = q.scan.clone();
+    obs.extend([l, 0.0, q.v, q.omega].map(|x| x as f32));
+    assert_eq!((r.v, r.omega), direct.act(&obs).unwrap());
+    // Strayed 2 m off the path: a new route is wanted.
+    let r =
+        client.act(ActRequest { pose: pose(2.0, -2.0, 0.0), ..act(3) }).await.unwrap().into_inner();
+    assert!(r.replan_wanted, "{r:?}");
+    // At the route's goal (whatever the request's goal_distance says): arrived, stopped.
+    let r =
+        client.act(ActRequest { pose: pose(4.0, 2.95, 1.5), ..act(4) }).await.unwrap().into_inner();
+    assert!(r.arrived && r.v == 0.0 && r.omega == 0.0, "{r:?}");
+
+    // Bad routes name the field; each refusal is counted.
+    invalid(client.set_route(route(&[])).await.unwrap_err(), "poses");
+    invalid(
+        client.set_route(route(&[[0.0, 0.0], [f64::NAN, 1.0]])).await.unwrap_err(),
+        "poses[1].x",
+    );
+    invalid(client.set_route(route(&[[0.0, 1e6]])).await.unwrap_err(), "poses[0].y");
+    let too_long = vec![[0.0, 0.0]; 100_001];
+    invalid(client.set_route(route(&too_long)).await.unwrap_err(), "poses");
+    let info = client.info(InfoRequest::default()).await.unwrap().into_inner();
+    assert_eq!(info.refused, 6, "{info:?}");
+    // Cleared: the robot drives to its request's goal again, no pose needed.
+    let clear = SetRouteRequest { robot_id: "r".into(), poses: vec![], clear: true };
+    client.set_route(clear).await.unwrap();
+    let r = client.act(act(5)).await.unwrap().into_inner();
+    assert!(!r.following_route, "{r:?}");
+    let (status, _) = server.stop().await;
+    assert!(status.success());
 }

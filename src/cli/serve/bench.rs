@@ -92,6 +92,7 @@ fn request(beams: usize, k: usize, laser: bool, robot: &str) -> pb::ActRequest {
         omega: 0.1,
         robot_id: robot.into(),
         expected_footprint_version: 0,
+        pose: None,
     }
 }
 

@@ -222,6 +222,7 @@ pub async fn serve(
             ctl,
             token,
             unseen_warned: Default::default(),
+            refused: Default::default(),
         }))
         .serve_with_incoming_shutdown(incoming, async {
             shutdown.await;
@@ -282,6 +283,7 @@ pub(super) fn robot_input(r: &pb::ActRequest) -> Result<RobotInput<'_>, Status> 
         robot_id: &r.robot_id,
         expected_footprint_version: (r.expected_footprint_version != 0)
             .then_some(r.expected_footprint_version),
+        pose: r.pose.as_ref().map(|p| dvnav_sim::Pose2::new(p.x, p.y, p.yaw)),
     })
 }
 
@@ -294,6 +296,8 @@ struct ControllerService {
     beams: usize,
     /// Robots already warned that their sensor leaves most meta beams unseen (once each).
     unseen_warned: std::sync::Mutex<std::collections::HashSet<String>>,
+    /// Requests refused as malformed since the server started (InfoReply.refused).
+    refused: std::sync::atomic::AtomicU64,
 }
 
 impl ControllerService {
@@ -309,6 +313,14 @@ impl ControllerService {
 }
 
 impl ControllerService {
+    /// The status of a refusal, counted when the request was malformed.
+    fn refuse(&self, e: ControllerError) -> Status {
+        if matches!(e, ControllerError::InvalidArgument { .. }) {
+            self.refused.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
+        status(e)
+    }
+
     /// A scan that leaves most of the meta agent's beams unseen drives on guesses (a sensor
     /// turned the wrong way, a narrow field, a driver's invalid readings): said once per robot,
     /// naming its sensor, the first time it happens.
@@ -337,7 +349,13 @@ impl ControllerService {
 }
 
 fn act_reply(c: Command, model: &ModelId) -> pb::ActReply {
+    let route = c.route;
     pb::ActReply {
+        following_route: route.is_some(),
+        subgoal_x: route.map_or(0.0, |r| r.subgoal[0]),
+        subgoal_y: route.map_or(0.0, |r| r.subgoal[1]),
+        remaining_m: route.map_or(0.0, |r| r.remaining_m),
+        replan_wanted: route.is_some_and(|r| r.replan_wanted),
         v: c.v,
         omega: c.omega,
         mu: c.mu,
@@ -363,9 +381,19 @@ fn footprint_reply(s: FootprintState) -> pb::SetFootprintReply {
     }
 }
 
-fn info_reply(i: ControllerInfo) -> pb::InfoReply {
+fn info_reply(
+    i: ControllerInfo,
+    subgoals: &dvnav_sim::subgoal::SubgoalConfig,
+    refused: u64,
+) -> pb::InfoReply {
     let fp = i.footprint;
     pb::InfoReply {
+        lookahead_m: subgoals.lookahead_m,
+        replan_distance_m: subgoals.replan_distance_m,
+        stall_s: subgoals.stall_s,
+        rotation_shim: subgoals.rotation_shim,
+        rotation_shim_angle_deg: subgoals.shim_angle_deg,
+        refused,
         scan_beams: i.beams as u32,
         scan_fov_deg: i.fov_deg,
         range_min: i.scan_range[0],
@@ -403,13 +431,15 @@ impl Controller for ControllerService {
     async fn act(&self, req: Request<pb::ActRequest>) -> Result<Response<pb::ActReply>, Status> {
         self.authorize(&req)?;
         let r = req.into_inner();
-        let input = robot_input(&r)?;
+        let input = robot_input(&r).inspect_err(|_| {
+            self.refused.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        })?;
         // Calls arriving together share one forward pass; a waiting call does not hold its
         // worker (`dvst::shared_policy`).
         let command = self.ctl.act_async(&input).await.inspect_err(|e| {
             tracing::debug!(robot = %r.robot_id, error = %e, "Act refused");
         });
-        let command = command.map_err(status)?;
+        let command = command.map_err(|e| self.refuse(e))?;
         tracing::trace!(robot = %r.robot_id, v = command.v, omega = command.omega, "Act");
         self.warn_if_mostly_unseen(&r.robot_id, &command);
         Ok(Response::new(act_reply(command, self.ctl.model())))
@@ -424,7 +454,7 @@ impl Controller for ControllerService {
         let state = self.ctl.set_footprint_toml(&r.robot_id, &r.footprint_toml).inspect_err(|e| {
             tracing::warn!(robot = %r.robot_id, error = %e, "SetFootprint refused");
         });
-        let state = state.map_err(status)?;
+        let state = state.map_err(|e| self.refuse(e))?;
         tracing::info!(
             robot = %r.robot_id,
             footprint = %state.robot.footprint.name,
@@ -439,8 +469,40 @@ impl Controller for ControllerService {
     async fn info(&self, req: Request<pb::InfoRequest>) -> Result<Response<pb::InfoReply>, Status> {
         self.authorize(&req)?;
         let r = req.into_inner();
-        dvnav_nav::dvst::controller::check_robot_id(&r.robot_id).map_err(status)?;
-        Ok(Response::new(info_reply(self.ctl.info(&r.robot_id))))
+        dvnav_nav::dvst::controller::check_robot_id(&r.robot_id).map_err(|e| self.refuse(e))?;
+        let refused = self.refused.load(std::sync::atomic::Ordering::Relaxed);
+        let info = self.ctl.info(&r.robot_id);
+        Ok(Response::new(info_reply(info, self.ctl.subgoal_config(), refused)))
+    }
+
+    async fn set_route(
+        &self,
+        req: Request<pb::SetRouteRequest>,
+    ) -> Result<Response<pb::SetRouteReply>, Status> {
+        self.authorize(&req)?;
+        let r = req.into_inner();
+        if r.clear {
+            if !r.poses.is_empty() {
+                return Err(self.refuse(ControllerError::InvalidArgument {
+                    field: "poses".into(),
+                    reason: "`clear` drops the route: send no poses with it".into(),
+                }));
+            }
+            let had = self.ctl.clear_route(&r.robot_id).map_err(|e| self.refuse(e))?;
+            tracing::info!(robot = %r.robot_id, had, "route cleared");
+            return Ok(Response::new(pb::SetRouteReply::default()));
+        }
+        let points = r.poses.iter().map(|p| [p.x, p.y]).collect();
+        let set = self.ctl.set_route(&r.robot_id, points).map_err(|e| {
+            tracing::warn!(robot = %r.robot_id, error = %e, "SetRoute refused");
+            self.refuse(e)
+        })?;
+        tracing::info!(robot = %r.robot_id, poses = set.poses, length_m = set.length_m, "route set");
+        Ok(Response::new(pb::SetRouteReply {
+            poses: set.poses as u32,
+            length_m: set.length_m,
+            lookahead_m: set.lookahead_m,
+        }))
     }
 }
 

@@ -35,13 +35,15 @@
 use super::footprint_file::VariedRobot;
 use super::laser_scan::{self, BeamLayout, LaserScan, MAX_RANGE_M};
 use super::robots::{RobotTable, TableFull};
+use super::route::{RobotRoute, RouteRefusal, RouteStatus, check_pose, check_route};
 use super::scale::MetaRobot;
 use super::shared_policy::{Reply, SharedPolicy};
 use super::transfer::{VelocityBounds, transfer_observation, transfer_policy};
 use crate::policy::NavPolicy;
 use dvnav_config::Config;
-use dvnav_sim::SpecFileError;
 use dvnav_sim::obs::{ANGULAR_VELOCITY, GOAL_ANGLE, GOAL_DISTANCE, LINEAR_VELOCITY, obs_dim};
+use dvnav_sim::subgoal::SubgoalConfig;
+use dvnav_sim::{Pose2, SpecFileError};
 use std::f64::consts::{PI, TAU};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
@@ -102,6 +104,9 @@ pub struct RobotInput<'a> {
     /// The footprint version the robot believes it drives with; a command for another one is
     /// refused ([`ControllerError::FootprintChanged`]). `None`: any.
     pub expected_footprint_version: Option<u64>,
+    /// The robot's pose in its route's frame: needed while it follows a route
+    /// ([`DvstController::set_route`]), when the goal fields are not read.
+    pub pose: Option<Pose2>,
 }
 
 impl<'a> RobotInput<'a> {
@@ -115,6 +120,7 @@ impl<'a> RobotInput<'a> {
             omega,
             robot_id: "",
             expected_footprint_version: None,
+            pose: None,
         }
     }
 }
@@ -138,6 +144,19 @@ pub struct Command {
     pub footprint: String,
     /// Which footprint it was computed with ([`FootprintState::version`]).
     pub footprint_version: u64,
+    /// While the robot follows a route: the subgoal given and the path left.
+    pub route: Option<RouteStatus>,
+}
+
+/// A route as the controller took it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RouteSet {
+    /// Poses in it.
+    pub poses: usize,
+    /// Its length (m).
+    pub length_m: f64,
+    /// The robot's lookahead (m): the meta agent's times the robot's μ.
+    pub lookahead_m: f64,
 }
 
 /// A robot's footprint as a controller drives it: one immutable snapshot.
@@ -220,6 +239,12 @@ pub enum ControllerError {
     Policy(anyhow::Error),
 }
 
+impl From<RouteRefusal> for ControllerError {
+    fn from(r: RouteRefusal) -> Self {
+        ControllerError::InvalidArgument { field: r.field, reason: r.reason }
+    }
+}
+
 impl ControllerError {
     fn invalid(field: impl Into<String>, reason: impl Into<String>) -> Self {
         ControllerError::InvalidArgument { field: field.into(), reason: reason.into() }
@@ -246,8 +271,12 @@ impl<P: NavPolicy + Send> SharedAct for SharedPolicy<P> {
 struct Prepared {
     state: Arc<FootprintState>,
     filled_beams: usize,
-    /// The meta observation, or `None` once arrived.
+    /// The meta observation, or `None` once arrived (or held by the rotation shim).
     meta_obs: Option<Vec<f32>>,
+    /// While following a route: its status, and the rotation shim's command when it holds
+    /// the robot.
+    route: Option<RouteStatus>,
+    shim: Option<(f64, f64)>,
 }
 
 /// A meta agent driving many varied robots through DVST, shared by the requests of a service.
@@ -257,6 +286,10 @@ struct Prepared {
 pub struct DvstController {
     policy: Box<dyn SharedAct>,
     robots: Mutex<RobotTable<Arc<FootprintState>>>,
+    /// Routes of robots that follow one (`SetRoute`), bounded and expiring like `robots`.
+    routes: Mutex<RobotTable<Arc<Mutex<RobotRoute>>>>,
+    /// The subgoal rule's constants: the model's `env.subgoals`, else the defaults.
+    subgoals: SubgoalConfig,
     /// The robot of `dvnav serve --footprint`: every robot without one of its own.
     default_robot: Arc<FootprintState>,
     next_version: AtomicU64,
@@ -310,6 +343,8 @@ impl DvstController {
         Ok(Self {
             policy: Box::new(SharedPolicy::new(policy)),
             robots: Mutex::new(RobotTable::new(DEFAULT_MAX_ROBOTS, DEFAULT_ROBOT_IDLE)),
+            routes: Mutex::new(RobotTable::new(DEFAULT_MAX_ROBOTS, DEFAULT_ROBOT_IDLE)),
+            subgoals: cfg.env.subgoals.clone().unwrap_or_default(),
             default_robot,
             next_version: AtomicU64::new(2),
             beams: lidar.beams,
@@ -330,6 +365,8 @@ impl DvstController {
         anyhow::ensure!(max_robots > 0, "a controller drives at least one robot");
         anyhow::ensure!(!idle.is_zero(), "the robot idle time must be above 0 s");
         *self.robots.lock().unwrap_or_else(PoisonError::into_inner) =
+            RobotTable::new(max_robots, idle);
+        *self.routes.lock().unwrap_or_else(PoisonError::into_inner) =
             RobotTable::new(max_robots, idle);
         Ok(self)
     }
@@ -404,6 +441,7 @@ impl DvstController {
                 current: state.version,
             });
         }
+        let route = self.follow_route(input, &state)?;
         let b = self.beams;
         let mut obs = vec![0.0f32; obs_dim(b)];
         let filled_beams = match input.scan {
@@ -418,24 +456,102 @@ impl DvstController {
                 )?
             }
         };
-        if input.goal_distance <= state.goal_tolerance {
-            return Ok(Prepared { state, filled_beams, meta_obs: None });
+        let (goal_distance, goal_angle, arrived, shim) = match &route {
+            Some(r) => (r.goal_distance, r.goal_angle, r.arrived, r.shim),
+            None => (
+                input.goal_distance,
+                input.goal_angle,
+                input.goal_distance <= state.goal_tolerance,
+                None,
+            ),
+        };
+        let status = route.map(|r| r.status);
+        if arrived || shim.is_some() {
+            return Ok(Prepared { state, filled_beams, meta_obs: None, route: status, shim });
         }
-        obs[b + GOAL_DISTANCE] = input.goal_distance as f32;
-        obs[b + GOAL_ANGLE] = wrap_angle(input.goal_angle) as f32;
+        obs[b + GOAL_DISTANCE] = goal_distance as f32;
+        obs[b + GOAL_ANGLE] = wrap_angle(goal_angle) as f32;
         obs[b + LINEAR_VELOCITY] = input.v as f32;
         obs[b + ANGULAR_VELOCITY] = input.omega as f32;
         let mut meta_obs = vec![0.0f32; obs.len()];
         transfer_observation(&obs, b, state.mu, Some(self.scan_range), &mut meta_obs);
-        Ok(Prepared { state, filled_beams, meta_obs: Some(meta_obs) })
+        Ok(Prepared { state, filled_beams, meta_obs: Some(meta_obs), route: status, shim: None })
+    }
+
+    /// The robot's route step, if it follows one: the subgoal as its goal, arrival at the
+    /// route's goal, the rotation shim. A robot on a route must say where it is.
+    fn follow_route(
+        &self,
+        input: &RobotInput,
+        state: &FootprintState,
+    ) -> Result<Option<RouteStep>, ControllerError> {
+        let Some(route) = self.routes_table().seen(input.robot_id, Instant::now()) else {
+            return Ok(None);
+        };
+        let pose = input.pose.ok_or_else(|| {
+            ControllerError::invalid(
+                "pose",
+                format!(
+                    "robot `{}` follows a route (SetRoute): send its pose in the route's frame \
+                     with every Act, or clear the route",
+                    input.robot_id
+                ),
+            )
+        })?;
+        let mut route = route.lock().unwrap_or_else(PoisonError::into_inner);
+        let (status, shim) = route.step(pose, self.control_period_s, state.bounds.omega_max);
+        let goal = route.goal();
+        let arrived = (pose.x - goal[0]).hypot(pose.y - goal[1]) <= state.goal_tolerance;
+        let [x, y] = pose.to_local(status.subgoal);
+        Ok(Some(RouteStep {
+            status,
+            goal_distance: x.hypot(y),
+            goal_angle: y.atan2(x),
+            arrived,
+            shim: if arrived { None } else { shim },
+        }))
+    }
+
+    /// Robot `robot_id` follows `points` (its own planner's path, in the frame its `Act` poses
+    /// will be in) from now on, replacing any route it had. Refused, naming the field, when a
+    /// pose is not finite or out of bounds, or the route is empty or too long.
+    pub fn set_route(
+        &self,
+        robot_id: &str,
+        points: Vec<[f64; 2]>,
+    ) -> Result<RouteSet, ControllerError> {
+        check_robot_id(robot_id)?;
+        check_route(&points)?;
+        let poses = points.len();
+        let mu = self.footprint(robot_id).mu;
+        let route = RobotRoute::new(self.subgoals.clone(), mu, points);
+        let set = RouteSet { poses, length_m: route.length_m(), lookahead_m: route.lookahead_m() };
+        self.routes_table().set(robot_id, Instant::now(), Arc::new(Mutex::new(route)))?;
+        Ok(set)
+    }
+
+    /// Robot `robot_id` no longer follows a route; says whether it had one.
+    pub fn clear_route(&self, robot_id: &str) -> Result<bool, ControllerError> {
+        check_robot_id(robot_id)?;
+        Ok(self.routes_table().remove(robot_id))
+    }
+
+    /// The subgoal rule's constants.
+    pub fn subgoal_config(&self) -> &SubgoalConfig {
+        &self.subgoals
+    }
+
+    fn routes_table(&self) -> MutexGuard<'_, RobotTable<Arc<Mutex<RobotRoute>>>> {
+        self.routes.lock().unwrap_or_else(PoisonError::into_inner)
     }
 
     /// The command from the meta agent's answer (`None`: arrived, no question asked).
     fn finish(&self, p: Prepared, reply: Option<Reply>) -> Result<Command, ControllerError> {
-        let Prepared { state, filled_beams, .. } = p;
-        let (v, omega, arrived) = match reply {
-            None => (0.0, 0.0, true),
-            Some(reply) => {
+        let Prepared { state, filled_beams, route, shim, .. } = p;
+        let (v, omega, arrived) = match (reply, shim) {
+            (None, Some((v, omega))) => (v, omega, false),
+            (None, None) => (0.0, 0.0, true),
+            (Some(reply), _) => {
                 let (v_m, omega_m) =
                     reply.map_err(|e| ControllerError::Policy(anyhow::Error::msg(e)))?;
                 if !(v_m.is_finite() && omega_m.is_finite()) {
@@ -449,6 +565,7 @@ impl DvstController {
         };
         self.commands.fetch_add(1, Ordering::Relaxed);
         Ok(Command {
+            route,
             v,
             omega,
             arrived,
@@ -535,6 +652,9 @@ impl DvstController {
                 ControllerError::invalid(format!("laser_scan.{}", e.field), e.reason)
             })?,
         }
+        if let Some(pose) = input.pose {
+            check_pose(pose)?;
+        }
         let d = input.goal_distance;
         if !(d.is_finite() && (0.0..=MAX_RANGE_M).contains(&d)) {
             return Err(ControllerError::invalid(
@@ -592,6 +712,17 @@ impl DvstController {
         }
         Ok(())
     }
+}
+
+/// One route step of a request.
+struct RouteStep {
+    status: RouteStatus,
+    /// The subgoal seen from the robot.
+    goal_distance: f64,
+    goal_angle: f64,
+    /// At the route's goal.
+    arrived: bool,
+    shim: Option<(f64, f64)>,
 }
 
 /// A robot id within [`MAX_ROBOT_ID`] bytes, else the field's refusal.

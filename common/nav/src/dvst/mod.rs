@@ -15,6 +15,8 @@
 //! - [`shared_policy`]: [`shared_policy::SharedPolicy`], one policy answering many callers,
 //!   batching what arrives together.
 //! - [`robots`]: [`robots::RobotTable`], robots by id, bounded, expiring when silent.
+//! - [`route`]: a robot's own planner's path, followed by the simulator's subgoal rule
+//!   (`SetRoute`).
 //! - [`controller`]: [`DvstController`], a meta agent driving many robots for many callers
 //!   (`dvnav serve`): checked and bounded requests, per-robot footprints changed atomically,
 //!   arrival.
@@ -38,6 +40,7 @@ pub mod agent;
 pub mod controller;
 pub mod footprint_file;
 pub mod robots;
+pub mod route;
 pub mod scale;
 pub mod shared_policy;
 pub mod transfer;

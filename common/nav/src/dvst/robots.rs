@@ -84,6 +84,22 @@ impl<T: Clone> RobotTable<T> {
             .map(|e| e.state.clone())
     }
 
+    /// Robot `id`'s state, if it is in the table and active at `now`, marking it seen.
+    pub fn seen(&mut self, id: &str, now: Instant) -> Option<T> {
+        let idle = self.idle;
+        let e = self.entries.get_mut(id)?;
+        if now.saturating_duration_since(e.last_seen) >= idle {
+            return None;
+        }
+        e.last_seen = now;
+        Some(e.state.clone())
+    }
+
+    /// Drops robot `id`'s entry; says whether there was one.
+    pub fn remove(&mut self, id: &str) -> bool {
+        self.entries.remove(id).is_some()
+    }
+
     /// Robots active at `now` (expired ones are dropped first).
     pub fn active(&mut self, now: Instant) -> usize {
         self.expire(now);
