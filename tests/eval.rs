@@ -271,6 +271,28 @@ fn long_tasks_report_planned_routes() {
             assert_eq!(r["replans"], 0.0, "mapless never replans: {r}");
         }
     }
+    // A robot with no long task in the room is skipped, said on stderr, and its row has no
+    // episodes; the others run.
+    let out = eval(&[
+        "--checkpoint",
+        ck,
+        "--room",
+        "env3",
+        "--tasks",
+        "long",
+        "--radii",
+        "0.2,3.0",
+        "--episodes",
+        "3",
+        "--json",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("skipped, no task for a robot of radius 3")
+    );
+    let rows = json(&out);
+    assert_eq!((rows[0]["episodes"].as_u64(), rows[1]["episodes"].as_u64()), (Some(3), Some(0)));
+    assert!(rows[1]["success_rate"].is_null(), "{}", rows[1]);
     // Local tasks carry no route figures.
     let out = eval(&[
         "--checkpoint",

@@ -655,7 +655,21 @@ pub fn run(args: EvalArgs) -> anyhow::Result<ExitCode> {
     if args.json {
         println!("{}", serde_json::to_string_pretty(&rows)?);
     } else {
-        eval_out::print_table(&rows, &mus);
+        // One μ per row: the policy of the row's robot (rows are per room and robot).
+        let row_mus: Vec<f64> = match &rows {
+            Rows::Rooms(rooms) if in_rooms => rooms
+                .iter()
+                .map(|r| {
+                    tasks
+                        .iter()
+                        .find(|t| t.room.name() == r.room && t.radius == r.radius)
+                        .and_then(|t| mus.get(t.policy).copied())
+                        .unwrap_or(f64::NAN)
+                })
+                .collect(),
+            _ => mus.clone(),
+        };
+        eval_out::print_table(&rows, &row_mus);
     }
     if let Some(dir) = &args.out_dir {
         eval_out::write_csv(&dir.join("episodes.csv"), args.scenario.name(), &tasks, &results)?;

@@ -56,16 +56,15 @@ impl Task {
         }
     }
 
-    fn job(&self, cfg: &EnvConfig) -> Job {
-        let env = match &self.footprint {
-            Some(f) => NavEnv::with_footprint(self.room.clone(), cfg, self.seed, f.clone()),
-            None => NavEnv::new(self.room.clone(), cfg, self.seed),
-        };
+    /// The task's job; `Err` when its room has no task for its robot (a robot too big for
+    /// the room, or no two points far enough apart that it can drive between).
+    fn job(&self, cfg: &EnvConfig) -> Result<Job, dvnav_sim::NoTask> {
+        let env = NavEnv::try_new(self.room.clone(), cfg, self.seed, self.footprint.clone())?;
         let plan = match &self.kind {
             TaskKind::Route(r) => Plan::Route { start: r.start_pose(), goals: r.goals.clone() },
             TaskKind::Random { .. } => Plan::Random,
         };
-        Job { env, plan, policy: self.policy }
+        Ok(Job { env, plan, policy: self.policy })
     }
 }
 
@@ -87,10 +86,9 @@ fn splitmix64(x: u64) -> u64 {
 }
 
 /// Runs `tasks` with `policies` (see [`run_jobs`]); `on_leg` sees each leg with its task.
-/// Returns each task's legs, in task order.
-///
-/// # Panics
-/// If a random task's room has no room for its robot (see [`NavEnv::reset`]).
+/// Returns each task's legs, in task order. A task whose room has no task for its robot (see
+/// [`NavEnv::try_reset`]) is skipped with a warning on stderr, once per room and robot size,
+/// and has no legs: its row reports 0 episodes.
 pub fn run_tasks(
     tasks: &[Task],
     cfg: &EnvConfig,
@@ -103,8 +101,33 @@ pub fn run_tasks(
             f.validate()?;
         }
     }
-    let jobs = tasks.iter().map(|t| t.job(cfg)).collect();
-    run_jobs(jobs, policies, opts, &mut |d| on_leg(&tasks[d.job], d))
+    let mut warned = std::collections::HashSet::new();
+    let mut runnable = Vec::new();
+    let mut index = Vec::new();
+    for (i, t) in tasks.iter().enumerate() {
+        match t.job(cfg) {
+            Ok(job) => {
+                runnable.push(job);
+                index.push(i);
+            }
+            Err(e) => {
+                if warned.insert((t.room.name().to_string(), t.robot_radius(cfg).to_bits())) {
+                    eprintln!(
+                        "warning: skipped, no task for a robot of radius {} m: {e}",
+                        t.robot_radius(cfg)
+                    );
+                }
+            }
+        }
+    }
+    let ran = run_jobs(runnable, policies, opts, &mut |d| {
+        on_leg(&tasks[index[d.job]], LegDone { job: index[d.job], ..d })
+    })?;
+    let mut out: Vec<Vec<EpisodeResult>> = (0..tasks.len()).map(|_| Vec::new()).collect();
+    for (legs, i) in ran.into_iter().zip(index) {
+        out[i] = legs;
+    }
+    Ok(out)
 }
 
 #[cfg(test)]

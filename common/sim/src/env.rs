@@ -18,6 +18,12 @@ mod route;
 use route::RouteState;
 pub use route::RouteStats;
 
+/// No start and goal could be drawn for the robot in the room: the message says which room and
+/// what was asked.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("{0}")]
+pub struct NoTask(pub String);
+
 /// What one control step produced.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct StepOutcome {
@@ -122,7 +128,41 @@ impl NavEnv {
         NavEnv::build(room, cfg, seed, footprint, None)
     }
 
+    /// [`NavEnv::new`] (`footprint` `None`) or [`NavEnv::with_footprint`], with an error instead
+    /// of a panic when the room has no task for the robot (evaluations skip such a room and
+    /// robot, saying so).
+    pub fn try_new(
+        room: Arc<Room>,
+        cfg: &EnvConfig,
+        seed: u64,
+        footprint: Option<Footprint>,
+    ) -> Result<NavEnv, NoTask> {
+        let (fp, range) = match footprint {
+            Some(f) => (f, None),
+            None => (
+                cfg.footprint.clone().unwrap_or_else(|| Footprint::circle(cfg.robot_radius)),
+                if cfg.footprint.is_none() { cfg.radius_range } else { None },
+            ),
+        };
+        let mut env = NavEnv::unreset(room, cfg, seed, fp, range);
+        env.try_reset()?;
+        Ok(env)
+    }
+
     fn build(
+        room: Arc<Room>,
+        cfg: &EnvConfig,
+        seed: u64,
+        footprint: Footprint,
+        radius_range: Option<[f64; 2]>,
+    ) -> NavEnv {
+        let mut env = NavEnv::unreset(room, cfg, seed, footprint, radius_range);
+        env.reset();
+        env
+    }
+
+    /// The environment before its first reset.
+    fn unreset(
         room: Arc<Room>,
         cfg: &EnvConfig,
         seed: u64,
@@ -135,7 +175,7 @@ impl NavEnv {
         let mut rng = Pcg64::seed_from_u64(seed);
         let noise_rng = Pcg64::from_rng(&mut rng);
         let lidar = Lidar::new(&cfg.lidar);
-        let mut env = NavEnv {
+        NavEnv {
             cfg: cfg.clone(),
             scan: vec![cfg.lidar.range_max as f32; lidar.beams()],
             lidar,
@@ -164,9 +204,7 @@ impl NavEnv {
             perturb: Perturbation::default(),
             history: VecDeque::new(),
             route: None,
-        };
-        env.reset();
-        env
+        }
     }
 
     /// Starts a new episode: a start (uniform position, uniform heading) and a goal drawn at
@@ -181,8 +219,16 @@ impl NavEnv {
     /// the robot's radius is drawn first, from the same generator.
     ///
     /// # Panics
-    /// If no such pair is found after many tries (a room without free space for the robot).
+    /// If no such pair is found after many tries (a room without free space for the robot);
+    /// [`NavEnv::try_reset`] says so instead.
     pub fn reset(&mut self) {
+        if let Err(e) = self.try_reset() {
+            panic!("{e}");
+        }
+    }
+
+    /// [`NavEnv::reset`], with an error when no start and goal are found.
+    pub fn try_reset(&mut self) -> Result<(), NoTask> {
         self.take_next_room();
         if let Some([lo, hi]) = self.radius_range {
             let r = if lo < hi { self.rng.random_range(lo..=hi) } else { lo };
@@ -197,12 +243,12 @@ impl NavEnv {
             .then(|| self.room.reach(r_grid));
         let slack = self.cfg.spawn_clearance - (r_grid - r);
         for _ in 0..100 {
-            let start = self.sample_free(need, true);
+            let start = self.sample_free(need, true)?;
             if reach.as_ref().is_some_and(|r| r.component_at(start, slack).is_none()) {
                 continue;
             }
             for _ in 0..100 {
-                let goal = self.sample_free(need, false);
+                let goal = self.sample_free(need, false)?;
                 let d = dist(start, goal);
                 let far_enough = d >= self.cfg.min_start_goal_distance;
                 let near_enough = self.cfg.max_start_goal_distance <= 0.0
@@ -213,11 +259,11 @@ impl NavEnv {
                 {
                     let yaw = self.rng.random_range(-std::f64::consts::PI..std::f64::consts::PI);
                     self.begin(Pose2::new(start[0], start[1], yaw), goal);
-                    return;
+                    return Ok(());
                 }
             }
         }
-        panic!(
+        Err(NoTask(format!(
             "room `{}`: found no start and goal {} m apart with {need} m clearance that the \
              robot can drive between (env.reachable_tasks, max_start_goal_distance {}, \
              max_path_ratio {})",
@@ -225,7 +271,7 @@ impl NavEnv {
             self.cfg.min_start_goal_distance,
             self.cfg.max_start_goal_distance,
             self.cfg.max_path_ratio
-        );
+        )))
     }
 
     /// Whether the robot can drive from `start` to `goal` (`d` apart), within the path-ratio
@@ -280,7 +326,7 @@ impl NavEnv {
 
     /// A uniformly drawn point whose disc of radius `need` touches nothing, from the room's
     /// spawn regions for starts (`starts`) or goals, or anywhere in its square without regions.
-    fn sample_free(&mut self, need: f64, starts: bool) -> [f64; 2] {
+    fn sample_free(&mut self, need: f64, starts: bool) -> Result<[f64; 2], NoTask> {
         let room = self.room.clone();
         let regions: Vec<_> = room
             .spec()
@@ -289,7 +335,9 @@ impl NavEnv {
             .filter(|r| if starts { r.starts } else { r.goals })
             .collect();
         let h = room.side() / 2.0 - need;
-        assert!(h > 0.0, "room `{}` is too small for the robot", room.name());
+        if h <= 0.0 {
+            return Err(NoTask(format!("room `{}` is too small for the robot", room.name())));
+        }
         let area = |r: &&crate::SpawnRegion| (r.max[0] - r.min[0]) * (r.max[1] - r.min[1]);
         let total: f64 = regions.iter().map(area).sum();
         for _ in 0..SAMPLE_TRIES {
@@ -311,10 +359,13 @@ impl NavEnv {
                 ]
             };
             if !room.circle_collides_any_time(p, need) {
-                return p;
+                return Ok(p);
             }
         }
-        panic!("room `{}`: no free point with {need} m clearance found", self.room.name());
+        Err(NoTask(format!(
+            "room `{}`: no free point with {need} m clearance found",
+            self.room.name()
+        )))
     }
 
     fn begin(&mut self, start: Pose2, goal: [f64; 2]) {

@@ -73,7 +73,7 @@ pub mod spec;
 pub mod subgoal;
 mod vec_env;
 
-pub use env::{NavEnv, RouteStats, StepOutcome};
+pub use env::{NavEnv, NoTask, RouteStats, StepOutcome};
 pub use env_config::{EnvConfig, LidarConfig, RewardConfig};
 pub use footprint::Footprint;
 pub use footprint::MAX_ROBOT_EXTENT_M;
