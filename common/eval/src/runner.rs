@@ -98,14 +98,15 @@ struct Slot {
 }
 
 impl Slot {
-    fn start(job: usize, j: Job, samples: bool) -> Slot {
+    /// The job's first episode; `Err` when its room has no random task for its robot.
+    fn start(job: usize, j: Job, samples: bool) -> Result<Slot, dvnav_sim::NoTask> {
         let Job { mut env, plan, policy } = j;
         match &plan {
-            Plan::Random => env.reset(),
+            Plan::Random => env.try_reset()?,
             Plan::Route { start, goals } => env.reset_to(*start, goals[0]),
         }
         let recorder = Recorder::begin(&env, samples);
-        Slot { job, env, plan, policy, leg: 0, recorder, legs: Vec::new() }
+        Ok(Slot { job, env, plan, policy, leg: 0, recorder, legs: Vec::new() })
     }
 }
 
@@ -150,7 +151,12 @@ pub fn run_jobs(
     loop {
         while slots.len() < opts.window {
             let Some((i, j)) = pending.pop_front() else { break };
-            slots.push(Slot::start(i, j, opts.samples));
+            match Slot::start(i, j, opts.samples) {
+                Ok(slot) => slots.push(slot),
+                // Drawn once when the environment was made, not again: a room where tasks are
+                // that rare for the robot. The job has no legs.
+                Err(e) => eprintln!("warning: job {i} skipped: {e}"),
+            }
         }
         if slots.is_empty() {
             break;
