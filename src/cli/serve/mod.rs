@@ -59,6 +59,12 @@ pub struct ServeArgs {
     /// `expected_footprint_version`).
     #[arg(long, default_value_t = DEFAULT_ROBOT_IDLE.as_secs_f64())]
     robot_idle_s: f64,
+    /// Robots whose calls arrive together share one forward pass: about a third of the cost
+    /// per command at 64 robots, but a robot's command then depends in its last bits on who
+    /// else is served, so identical runs can diverge. Default: one pass per robot,
+    /// deterministic.
+    #[arg(long)]
+    batched_inference: bool,
 }
 
 /// Runs `dvnav serve` until Ctrl-C or SIGTERM.
@@ -71,7 +77,8 @@ pub fn run(args: ServeArgs) -> anyhow::Result<ExitCode> {
     );
     let ctl = load_controller(&args.checkpoint, &args.footprint, args.margin)?
         .with_robot_limits(args.max_robots, Duration::from_secs_f64(args.robot_idle_s))
-        .map_err(|e| anyhow::anyhow!("--max-robots / --robot-idle-s: {e:#}"))?;
+        .map_err(|e| anyhow::anyhow!("--max-robots / --robot-idle-s: {e:#}"))?
+        .with_batched_inference(args.batched_inference);
     let warm = std::time::Instant::now();
     ctl.warm_up().map_err(|e| {
         anyhow::anyhow!("{}: the policy failed its first pass: {e:#}", args.checkpoint.display())

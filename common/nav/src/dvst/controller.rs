@@ -253,11 +253,15 @@ impl ControllerError {
 
 /// [`SharedPolicy`] of any policy, so that the controller need not name the policy's type.
 trait SharedAct: Send + Sync + std::fmt::Debug {
+    fn set_batched(&self, on: bool);
     fn act_blocking(&self, obs: Vec<f32>) -> Reply;
     fn act(&self, obs: Vec<f32>) -> std::pin::Pin<Box<dyn Future<Output = Reply> + Send + '_>>;
 }
 
 impl<P: NavPolicy + Send> SharedAct for SharedPolicy<P> {
+    fn set_batched(&self, on: bool) {
+        SharedPolicy::set_batched(self, on)
+    }
     fn act_blocking(&self, obs: Vec<f32>) -> Reply {
         SharedPolicy::act_blocking(self, obs)
     }
@@ -369,6 +373,15 @@ impl DvstController {
         *self.routes.lock().unwrap_or_else(PoisonError::into_inner) =
             RobotTable::new(max_robots, idle);
         Ok(self)
+    }
+
+    /// With `on`, robots whose calls arrive together share one forward pass: cheaper per
+    /// command under load, but a command then depends in its last bits on the others in its
+    /// pass ([`super::shared_policy`]). Off by default: the same robot, observation and
+    /// weights give the same command whoever else is served.
+    pub fn with_batched_inference(self, on: bool) -> Self {
+        self.policy.set_batched(on);
+        self
     }
 
     /// Runs the policy once, on an open room with the goal ahead, so the first robot's first

@@ -8,8 +8,15 @@
 //! idle virtual machine made the tail worse, not better (`dvnav bench serve`, docs/results.md).
 //! So callers combine: each queues its observation; the caller that finds the policy free runs
 //! everything queued, in one batch, on its own thread, and hands out the answers; the others
-//! wait on a one-shot reply (asynchronously in a service). A lone caller pays no hand-over; under
-//! load the batch grows and the cost per command falls.
+//! wait on a one-shot reply (asynchronously in a service). A lone caller pays no hand-over.
+//!
+//! **Deterministic by default:** a forward pass over several observations computes each row with
+//! other kernels than a pass over one (measured: bit-identical for 1 and 2 rows, different in
+//! the last bits from 3 on), so a robot's command would depend on who else is being served and
+//! identical runs would diverge. By default the holder therefore runs each queued observation in
+//! a pass of its own: the same observation and weights give the same command whatever else is
+//! queued. [`SharedPolicy::batched`] trades that for throughput under load (one pass for up to
+//! [`MAX_BATCH`] observations: about a third of the cost per command at 64 robots).
 
 use crate::policy::NavPolicy;
 use std::sync::{Mutex, MutexGuard, PoisonError, mpsc};
@@ -49,6 +56,8 @@ pub struct SharedPolicy<P> {
     policy: Mutex<P>,
     queue: Mutex<Vec<Job>>,
     obs_dim: usize,
+    /// One forward pass for everything queued, instead of one per observation.
+    batched: std::sync::atomic::AtomicBool,
 }
 
 impl<P> std::fmt::Debug for SharedPolicy<P> {
@@ -61,7 +70,25 @@ impl<P: NavPolicy> SharedPolicy<P> {
     /// Shares `policy`.
     pub fn new(policy: P) -> Self {
         let obs_dim = policy.obs_dim();
-        SharedPolicy { policy: Mutex::new(policy), queue: Mutex::new(Vec::new()), obs_dim }
+        SharedPolicy {
+            policy: Mutex::new(policy),
+            queue: Mutex::new(Vec::new()),
+            obs_dim,
+            batched: false.into(),
+        }
+    }
+
+    /// Shares `policy`, answering everything queued in one forward pass: cheaper per command
+    /// under load, but a command then depends in its last bits on the other observations of
+    /// its pass.
+    pub fn batched(policy: P) -> Self {
+        SharedPolicy { batched: true.into(), ..SharedPolicy::new(policy) }
+    }
+
+    /// Switches between one pass per observation (`false`, the default) and one pass for
+    /// everything queued (`true`, [`SharedPolicy::batched`]).
+    pub fn set_batched(&self, on: bool) {
+        self.batched.store(on, std::sync::atomic::Ordering::Relaxed);
     }
 
     /// The command for one observation of the policy's length, awaited.
@@ -112,9 +139,15 @@ impl<P: NavPolicy> SharedPolicy<P> {
                 if batch.is_empty() {
                     break;
                 }
-                obs.clear();
-                batch.iter().for_each(|j| obs.extend_from_slice(&j.obs));
-                answer(&mut *policy, &obs, batch);
+                if self.batched.load(std::sync::atomic::Ordering::Relaxed) {
+                    obs.clear();
+                    batch.iter().for_each(|j| obs.extend_from_slice(&j.obs));
+                    answer(&mut *policy, &obs, batch);
+                } else {
+                    for Job { obs, reply } in batch {
+                        answer(&mut *policy, &obs, vec![Job { obs: Vec::new(), reply }]);
+                    }
+                }
             }
             drop(policy);
             if self.queue().is_empty() {
@@ -176,7 +209,7 @@ mod tests {
     #[test]
     fn concurrent_callers_share_forward_passes_and_each_gets_its_own_answer() {
         let passes = Arc::new(AtomicUsize::new(0));
-        let p = Arc::new(SharedPolicy::new(Slow { passes: passes.clone() }));
+        let p = Arc::new(SharedPolicy::batched(Slow { passes: passes.clone() }));
         assert_eq!(p.act_blocking(vec![7.0; 5]), Ok((7.0, 1.0)), "alone: its own pass");
         // 16 threads x 25 calls at once: every call answered with its own value (none
         // stranded, none swapped), in fewer passes than calls.
@@ -204,5 +237,72 @@ mod tests {
         assert_eq!(p.act_blocking(vec![-1.0; 5]), Err("a negative first value".into()));
         let rt = tokio::runtime::Builder::new_current_thread().build().unwrap();
         assert_eq!(rt.block_on(p.act(vec![2.0; 5])), Ok((2.0, 1.0)));
+    }
+
+    #[test]
+    fn by_default_each_observation_has_a_pass_of_its_own_batched_shares_them() {
+        for (batched, most) in [(false, 1.0), (true, 16.0)] {
+            let passes = Arc::new(AtomicUsize::new(0));
+            let slow = Slow { passes: passes.clone() };
+            let p = Arc::new(if batched {
+                SharedPolicy::batched(slow)
+            } else {
+                SharedPolicy::new(slow)
+            });
+            let callers: Vec<_> = (0..16)
+                .map(|t| {
+                    let p = p.clone();
+                    std::thread::spawn(move || {
+                        (0..10)
+                            .map(|_| p.act_blocking(vec![t as f32; 5]).unwrap().1)
+                            .fold(0.0, f64::max)
+                    })
+                })
+                .collect();
+            let largest = callers.into_iter().map(|c| c.join().unwrap()).fold(0.0, f64::max);
+            assert!(largest <= most, "batched {batched}: a pass of {largest}");
+            if batched {
+                assert!(largest > 1.0, "batches formed");
+            }
+        }
+    }
+
+    /// The shipped meta agent: one robot's command is bit-identical alone and queued with 1
+    /// and 10 other robots (a pass over several observations computes rows differently).
+    #[test]
+    fn a_robots_command_does_not_depend_on_who_else_is_served() {
+        let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../../models/meta-r0.2");
+        let (agent, cfg) = crate::policy::MetaAgent::load(dir.as_ref()).unwrap();
+        let d = cfg.env.obs_layout().dim();
+        let obs = |k: usize| -> Vec<f32> {
+            let mut o: Vec<f32> =
+                (0..d).map(|i| 0.3 + 4.0 * (1.0 + ((i + 11 * k) as f32 * 0.04).sin())).collect();
+            o[d - 4..].copy_from_slice(&[1.5 + k as f32 * 0.1, 0.3, 0.2, -0.1]);
+            o
+        };
+        let p = SharedPolicy::new(agent);
+        let mut policy = p.policy.lock().unwrap();
+        let run = |policy: &mut crate::policy::MetaAgent, others: usize, batched: bool| {
+            let (tx, rx) = mpsc::sync_channel(1);
+            let mut jobs = vec![Job { obs: obs(0), reply: ReplyTo::Blocking(tx) }];
+            for k in 1..=others {
+                let (tx, _) = mpsc::sync_channel(1);
+                jobs.push(Job { obs: obs(k), reply: ReplyTo::Blocking(tx) });
+            }
+            if batched {
+                let all: Vec<f32> = jobs.iter().flat_map(|j| j.obs.clone()).collect();
+                answer(policy, &all, jobs);
+            } else {
+                for Job { obs, reply } in jobs {
+                    answer(policy, &obs, vec![Job { obs: Vec::new(), reply }]);
+                }
+            }
+            rx.recv().unwrap().unwrap()
+        };
+        let alone = run(&mut policy, 0, false);
+        assert_eq!(run(&mut policy, 1, false), alone);
+        assert_eq!(run(&mut policy, 10, false), alone);
+        // What the default avoids: in one pass with 10 others, the last bits move.
+        assert_ne!(run(&mut policy, 10, true), alone);
     }
 }
