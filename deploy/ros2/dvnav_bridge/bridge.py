@@ -20,6 +20,10 @@ class Cycle:
     omega: float
     stop: str | None = None
     arrived: bool = False
+    # While following a route (/plan): the subgoal the agent was given (route frame) and
+    # whether the controller asks for a new plan (the robot strayed or stalled).
+    subgoal: tuple[float, float] | None = None
+    replan_wanted: bool = False
 
 
 STOP = (0.0, 0.0)
@@ -51,6 +55,10 @@ class BridgeCore:
         self.goal: tuple[float, float] | None = None
         self.footprint_version = 0
         self.info = None
+        # A route from the robot's planner (nav_msgs/Path): its frame is the odometry's unless
+        # poses come from on_pose (e.g. /amcl_pose in the map frame).
+        self.route = False
+        self.pose: tuple[float, float, float] | None = None
 
     def connect(self) -> "pb2.InfoReply":
         """Sets the robot's footprint (if it has a file) and reads what the server expects."""
@@ -80,7 +88,31 @@ class BridgeCore:
         self.odom, self.odom_at = msg, now
 
     def on_goal(self, msg) -> None:
+        """A new goal: driven mapless (straight for it) until a plan for it comes."""
         self.goal = conversion.goal_xy(msg)
+        if self.route:
+            self._set_route([])
+
+    def on_plan(self, msg) -> None:
+        """A nav_msgs/Path from the robot's planner: the controller follows it from now on
+        (an empty one drops the route). Its last pose becomes the goal."""
+        points = conversion.path_points(msg)
+        self._set_route(points)
+        self.goal = points[-1] if points else None
+
+    def on_pose(self, msg) -> None:
+        """The robot's pose in the plan's frame (geometry_msgs/PoseWithCovarianceStamped, e.g.
+        /amcl_pose), when that is not the odometry frame."""
+        p = msg.pose.pose
+        self.pose = (float(p.position.x), float(p.position.y), conversion.yaw_of(p.orientation))
+
+    def _set_route(self, points) -> None:
+        self.stub.SetRoute(
+            conversion.set_route_request(pb2, self.robot_id, points),
+            metadata=self.metadata,
+            timeout=max(self.call_timeout_s, 2.0),
+        )
+        self.route = bool(points)
 
     def step(self, now: float) -> Cycle:
         """One control cycle at `now` (s, the node's clock)."""
@@ -90,8 +122,11 @@ class BridgeCore:
         if why is not None:
             return Cycle(*STOP, stop=why)
         state = conversion.robot_state(self.odom)
+        pose = None
+        if self.route:
+            pose = self.pose if self.pose is not None else (state.x, state.y, state.yaw)
         request = conversion.act_request(
-            pb2, self.scan, state, self.goal, self.robot_id, self.footprint_version
+            pb2, self.scan, state, self.goal, self.robot_id, self.footprint_version, pose
         )
         try:
             reply = self.stub.Act(request, metadata=self.metadata, timeout=self.call_timeout_s)
@@ -105,7 +140,10 @@ class BridgeCore:
                     return Cycle(*STOP, stop=f"server error: {again.code().name}: {again.details()}")
                 return Cycle(*STOP, stop="footprint set again after the server forgot it")
             return Cycle(*STOP, stop=f"server error: {e.code().name}: {e.details()}")
+        subgoal = (reply.subgoal_x, reply.subgoal_y) if reply.following_route else None
         if reply.arrived:
             self.goal = None
+            if self.route:
+                self._set_route([])
             return Cycle(*STOP, stop="arrived", arrived=True)
-        return Cycle(reply.v, reply.omega)
+        return Cycle(reply.v, reply.omega, subgoal=subgoal, replan_wanted=reply.replan_wanted)

@@ -71,10 +71,29 @@ def laser_scan(pb2, scan):
     )
 
 
-def act_request(pb2, scan, state: RobotState, goal, robot_id: str = "", expected_version: int = 0):
-    """One control cycle's ActRequest from the latest scan, odometry state and goal."""
+def path_points(path) -> list[tuple[float, float]]:
+    """A nav_msgs/Path's positions (m), in its order: the route the controller follows."""
+    return [(float(p.pose.position.x), float(p.pose.position.y)) for p in path.poses]
+
+
+def set_route_request(pb2, robot_id: str, points):
+    """SetRoute for `points`, or one that clears the robot's route when there are none."""
+    if not points:
+        return pb2.SetRouteRequest(robot_id=robot_id, clear=True)
+    return pb2.SetRouteRequest(
+        robot_id=robot_id, poses=[pb2.Pose2D(x=x, y=y, yaw=0.0) for x, y in points]
+    )
+
+
+def act_request(
+    pb2, scan, state: RobotState, goal, robot_id: str = "", expected_version: int = 0, pose=None
+):
+    """One control cycle's ActRequest from the latest scan, odometry state and goal; with a
+    route, `pose` (x, y, yaw in the route's frame) goes with it."""
     distance, angle = goal_relative(goal, state)
+    extra = {} if pose is None else {"pose": pb2.Pose2D(x=pose[0], y=pose[1], yaw=pose[2])}
     return pb2.ActRequest(
+        **extra,
         laser_scan=laser_scan(pb2, scan),
         goal_distance=distance,
         goal_angle=angle,

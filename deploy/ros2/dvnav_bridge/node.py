@@ -1,7 +1,11 @@
 """The ROS 2 node: subscribes sensor_msgs/LaserScan (`scan`), nav_msgs/Odometry (`odom`) and
 geometry_msgs/PoseStamped (`goal_pose`, in the odometry frame), calls `dvnav serve` at the
 control period and publishes geometry_msgs/Twist on `cmd_vel`; a zero Twist on arrival, on a
-stale scan or odometry, and on a server error. See deploy/ros2/README.md.
+stale scan or odometry, and on a server error. With a planner: nav_msgs/Path on `plan` is
+followed by subgoals (SetRoute), the robot's pose from `odom` or, with `-p pose_topic:=amcl_pose`,
+from that geometry_msgs/PoseWithCovarianceStamped (the plan's frame); the subgoal is published
+on `dvnav/subgoal` (geometry_msgs/PointStamped) and a wanted replan is logged. See
+deploy/ros2/README.md.
 
     python3 -m dvnav_bridge.node --ros-args -p server:=127.0.0.1:50061 \
         -p footprint_file:=footprints/paper-medium.toml -p robot_id:=tb2
@@ -18,8 +22,8 @@ def main(args=None) -> None:
     # rclpy and the message packages come with ROS 2; imported here so that the conversion and
     # the control cycle import (and are tested) without them.
     import rclpy
-    from geometry_msgs.msg import PoseStamped, Twist, Vector3
-    from nav_msgs.msg import Odometry
+    from geometry_msgs.msg import Point, PointStamped, PoseStamped, PoseWithCovarianceStamped, Twist, Vector3
+    from nav_msgs.msg import Odometry, Path
     from rclpy.node import Node
     from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import LaserScan
@@ -60,6 +64,14 @@ def main(args=None) -> None:
             self.create_subscription(LaserScan, "scan", self._scan, qos_profile_sensor_data)
             self.create_subscription(Odometry, "odom", self._odom, 20)
             self.create_subscription(PoseStamped, "goal_pose", self._goal, 10)
+            self.create_subscription(Path, "plan", self._plan, 10)
+            pose_topic = self.declare_parameter("pose_topic", "").value
+            if pose_topic:
+                self.create_subscription(PoseWithCovarianceStamped, pose_topic, self.core.on_pose, 10)
+            self.plan_frame = "odom"
+            self.subgoal = self.create_publisher(PointStamped, "dvnav/subgoal", 10)
+            self._Point, self._PointStamped = Point, PointStamped
+            self._replan_logged = False
             self.create_timer(period, self._tick)
             self._last_stop = None
             self._Twist, self._Vector3 = Twist, Vector3
@@ -77,9 +89,24 @@ def main(args=None) -> None:
             self.core.on_goal(msg)
             self.get_logger().info(f"goal ({msg.pose.position.x:.2f}, {msg.pose.position.y:.2f})")
 
+        def _plan(self, msg):
+            self.core.on_plan(msg)
+            self.plan_frame = msg.header.frame_id or "odom"
+            self._replan_logged = False
+            self.get_logger().info(f"route of {len(msg.poses)} poses in frame {self.plan_frame!r}")
+
         def _tick(self):
             c = self.core.step(self._now())
             self.cmd.publish(conversion.twist(self._Twist, self._Vector3, c.v, c.omega))
+            if c.subgoal is not None:
+                m = self._PointStamped()
+                m.header.frame_id = self.plan_frame
+                m.header.stamp = self.get_clock().now().to_msg()
+                m.point = self._Point(x=c.subgoal[0], y=c.subgoal[1], z=0.0)
+                self.subgoal.publish(m)
+            if c.replan_wanted and not self._replan_logged:
+                self.get_logger().warn("the robot strayed from the plan or stalled: replan wanted")
+                self._replan_logged = True
             if c.stop != self._last_stop and c.stop is not None:
                 log = self.get_logger().info if c.arrived or c.stop == "no goal" else self.get_logger().warn
                 log(f"stopped: {c.stop}")

@@ -3,7 +3,7 @@
 import grpc
 import pytest
 
-from conftest import REPO, corridor_scan, goal_pose, odometry, through_cdr
+from conftest import REPO, T, corridor_scan, goal_pose, header, odometry, quaternion, through_cdr
 from dvnav_bridge.bridge import BridgeCore
 
 
@@ -56,3 +56,45 @@ def test_server_errors_stop_the_robot(server):
     server.stop()
     c = b.step(0.0)
     assert (c.v, c.omega) == (0.0, 0.0) and c.stop.startswith("server error: UNAVAILABLE"), c
+
+
+def path(points, frame="odom"):
+    """A nav_msgs/Path through `points` (the robot's planner's)."""
+    poses = [
+        T["geometry_msgs/msg/PoseStamped"](
+            header=header(0.0, frame),
+            pose=T["geometry_msgs/msg/Pose"](
+                position=T["geometry_msgs/msg/Point"](x=x, y=y, z=0.0), orientation=quaternion(0.0)
+            ),
+        )
+        for x, y in points
+    ]
+    return T["nav_msgs/msg/Path"](header=header(0.0, frame), poses=poses)
+
+
+def test_follows_a_plan_by_subgoals_and_arrives_at_its_end(server):
+    b = core(server)
+    info = b.connect()
+    b.on_plan(through_cdr(path([(0.0, 0.0), (6.0, 0.0), (6.0, 6.0)])))
+    assert b.route and b.goal == (6.0, 6.0)
+    b.on_scan(through_cdr(corridor_scan(0.0, y=0.0, yaw=0.0)), now=0.0)
+    b.on_odom(through_cdr(odometry(0.0, 0.5, 0.0, 0.0)), now=0.0)
+    c = b.step(0.1)
+    # The lookahead point along the path, the meta agent's L times this robot's mu (2.5).
+    look = info.lookahead_m * info.mu
+    assert c.stop is None and c.subgoal == pytest.approx((0.5 + look, 0.0)), (c, look)
+    assert not c.replan_wanted
+    # Far off the path: the controller asks for a new plan.
+    b.on_odom(through_cdr(odometry(0.2, 0.5, -3.5, 0.0)), now=0.2)
+    b.on_scan(through_cdr(corridor_scan(0.2, y=0.0, yaw=0.0)), now=0.2)
+    assert b.step(0.25).replan_wanted
+    # At the plan's end: arrived, and the route is dropped.
+    b.on_plan(through_cdr(path([(0.0, 0.0), (6.0, 0.0), (6.0, 6.0)])))
+    b.on_odom(through_cdr(odometry(0.3, 6.0, 5.8, 1.5)), now=0.3)
+    b.on_scan(through_cdr(corridor_scan(0.3, y=0.0, yaw=0.0)), now=0.3)
+    c = b.step(0.35)
+    assert c.arrived and not b.route, c
+    # An empty plan clears; a plain goal then drives mapless again.
+    b.on_plan(through_cdr(path([(0.0, 0.0), (3.0, 0.0)])))
+    b.on_plan(through_cdr(path([])))
+    assert not b.route and b.goal is None
