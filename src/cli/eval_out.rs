@@ -216,6 +216,7 @@ pub fn draw(
                 outcome: Some(e.outcome),
                 goal: e.goal,
                 radius: Some(t.robot_radius(cfg)),
+                plan: e.plan.clone(),
             });
         }
     }

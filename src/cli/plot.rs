@@ -237,6 +237,7 @@ fn panels(records: &[EpisodeRecord]) -> anyhow::Result<Vec<RoomPanel>> {
             outcome: dvnav_link::wire::outcome_from_proto(s.outcome),
             goal: [s.goal_x, s.goal_y],
             radius: footprint_radius(&s.footprint),
+            plan: Vec::new(),
         });
     }
     Ok(rooms.into_values().collect())

@@ -39,6 +39,9 @@ pub struct EpisodeResult {
     /// The start pose, then the pose after every step (for figures and logs).
     #[serde(skip)]
     pub trajectory: Vec<Pose2>,
+    /// The planned path the episode started with (`env.subgoals`; empty without one).
+    #[serde(skip)]
+    pub plan: Vec<[f64; 2]>,
 }
 
 impl EpisodeResult {
@@ -77,6 +80,7 @@ pub struct Recorder {
     path_length: f64,
     commands: CommandCounter,
     samples: Option<Vec<StepSample>>,
+    plan: Vec<[f64; 2]>,
 }
 
 impl Recorder {
@@ -88,6 +92,7 @@ impl Recorder {
             path_length: 0.0,
             commands: CommandCounter::new(env.config().omega_max),
             samples: samples.then(Vec::new),
+            plan: env.planned_path().map(|p| p.points.clone()).unwrap_or_default(),
         };
         r.trajectory.push(env.pose());
         r.sample(env, 0.0);
@@ -142,6 +147,7 @@ impl Recorder {
             route: env.route_stats(),
             commands: self.commands.stats(),
             trajectory: self.trajectory,
+            plan: self.plan,
         };
         (result, self.samples)
     }

@@ -206,6 +206,7 @@ mod tests {
                 sum_abs_domega: 0.1 * steps as f64,
             },
             trajectory: Vec::new(),
+            plan: Vec::new(),
         }
     }
 

@@ -25,6 +25,8 @@ const LEGEND: u32 = 52;
 const COLUMNS: usize = 2;
 /// Path width (px).
 const PATH_WIDTH: f32 = 2.0;
+/// Planned paths: a thin blue-grey line.
+const PLAN: Rgba = Rgba::hex(0x5b7fa6);
 
 /// The colour of an outcome's paths.
 pub fn outcome_color(o: Option<Outcome>) -> Rgba {
@@ -47,6 +49,9 @@ pub struct Trajectory {
     pub goal: [f64; 2],
     /// Radius of the robot's footprint (m), drawn at the end of a collision.
     pub radius: Option<f64>,
+    /// The path planned for it (m, world frame), drawn thin beneath the driven path; empty
+    /// for a mapless episode.
+    pub plan: Vec<[f64; 2]>,
 }
 
 /// The episodes of one room.
@@ -138,6 +143,11 @@ fn draw_panel(canvas: &mut Canvas, panel: &RoomPanel, left: f32, top: f32, size:
             canvas.stroke_polyline(&frame, true, 1.0, INK);
             canvas.text(left + 6.0, top + 6.0, "room unknown", 1, INK);
         }
+    }
+    // Planned paths beneath everything driven.
+    for t in panel.trajectories.iter().filter(|t| t.plan.len() > 1) {
+        let pts: Vec<(f32, f32)> = t.plan.iter().map(|&p| view.px(p)).collect();
+        canvas.stroke_polyline(&pts, false, 1.0, PLAN);
     }
     // Timeouts first, successes last: the outcome that matters most stays on top.
     let order = [None, Some(Outcome::Timeout), Some(Outcome::Collision), Some(Outcome::Success)];
@@ -240,6 +250,7 @@ mod tests {
             outcome,
             goal: [3.5, y],
             radius: Some(0.2),
+            plan: Vec::new(),
         }
     }
 
