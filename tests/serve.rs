@@ -570,3 +570,74 @@ async fn a_robot_follows_its_own_planners_route() {
     let (status, _) = server.stop().await;
     assert!(status.success());
 }
+
+/// A 5 x 3 m map (0.05 m cells) walled round, split at x = 2.5 m by a wall with a 1 m door at
+/// the top: a map_server YAML and a PGM, as a robot's map arrives.
+fn door_map() -> (String, Vec<u8>) {
+    let (w, h) = (100usize, 60usize);
+    let mut px = vec![254u8; w * h];
+    for row in 0..h {
+        for col in 0..w {
+            // Rows count from the top; y = (h - row - 0.5) * 0.05.
+            let y = (h - row) as f64 * 0.05 - 0.025;
+            let border = row < 2 || row >= h - 2 || col < 2 || col >= w - 2;
+            let wall = (49..=51).contains(&col) && !(1.8..2.8).contains(&y);
+            if border || wall {
+                px[row * w + col] = 0;
+            }
+        }
+    }
+    let mut pgm = format!("P5\n{w} {h}\n255\n").into_bytes();
+    pgm.extend(px);
+    let yaml = "image: door.pgm\nresolution: 0.05\norigin: [0.0, 0.0, 0.0]\nnegate: 0\n\
+                occupied_thresh: 0.65\nfree_thresh: 0.196\n";
+    (yaml.to_string(), pgm)
+}
+
+/// A robot without a planner of its own: the server is given the map (SetMap) and the goal
+/// (SetGoal), plans for the robot's footprint and drives it by subgoals; bad maps and goals are
+/// refused naming the field.
+#[tokio::test]
+async fn the_server_plans_on_a_map_for_a_robots_goal() {
+    use dvnav_proto::controller::v1::{SetGoalRequest, SetMapRequest};
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start(dir.path(), "footprints/small-0.15.toml", &[]);
+    let mut client = server.client().await;
+    let p = |x, y| Some(Pose2D { x, y, yaw: 0.0 });
+    let goal = |start, goal| SetGoalRequest { robot_id: "r".into(), start, goal };
+    // No map yet.
+    let e = client.set_goal(goal(p(1.0, 1.0), p(4.0, 1.0))).await.unwrap_err();
+    assert_eq!(e.code(), Code::FailedPrecondition, "{e:?}");
+    let (yaml, pgm) = door_map();
+    let bad = SetMapRequest { map_yaml: yaml.clone(), image: pgm[..50].to_vec() };
+    invalid(client.set_map(bad).await.unwrap_err(), "image");
+    let bad = SetMapRequest { map_yaml: "resolution: -1\n".into(), image: pgm.clone() };
+    invalid(client.set_map(bad).await.unwrap_err(), "map_yaml");
+    let set = SetMapRequest { map_yaml: yaml, image: pgm };
+    let map = client.set_map(set).await.unwrap().into_inner();
+    assert_eq!((map.width, map.height, map.resolution), (100, 60, 0.05));
+
+    // From the left room to the right one: the path goes up through the door.
+    let route = client.set_goal(goal(p(1.0, 1.0), p(4.0, 1.0))).await.unwrap().into_inner();
+    assert!(route.length_m > 3.0 + 1.0, "{route:?}");
+    let act = ActRequest { robot_id: "r".into(), pose: p(1.0, 1.0), ..request(1) };
+    let r = client.act(act).await.unwrap().into_inner();
+    assert!(r.following_route && !r.blocked && r.replans == 0, "{r:?}");
+    assert!(r.subgoal_y > 1.0 && r.subgoal_x < 2.5, "heads for the door: {r:?}");
+    assert!(r.remaining_m > 4.0, "{r:?}");
+    // Far off its path, the server replans itself: no replan is asked of the robot.
+    let act = ActRequest { robot_id: "r".into(), pose: p(0.3, 0.3), ..request(2) };
+    let r = client.act(act).await.unwrap().into_inner();
+    assert!(r.replans == 1 && !r.replan_wanted && !r.blocked, "{r:?}");
+    assert!(r.remaining_m > route.length_m, "planned again from farther away: {r:?}");
+
+    // Off the map, inside a wall, not a number: refused naming the point.
+    invalid(client.set_goal(goal(p(1.0, 1.0), p(9.0, 1.0))).await.unwrap_err(), "goal");
+    invalid(client.set_goal(goal(p(1.0, 1.0), p(2.5, 1.0))).await.unwrap_err(), "goal");
+    invalid(client.set_goal(goal(p(f64::NAN, 1.0), p(4.0, 1.0))).await.unwrap_err(), "start.x");
+    invalid(client.set_goal(goal(None, p(4.0, 1.0))).await.unwrap_err(), "start");
+    let info = client.info(InfoRequest::default()).await.unwrap().into_inner();
+    assert_eq!(info.refused, 6, "{info:?}");
+    let (status, _) = server.stop().await;
+    assert!(status.success());
+}

@@ -427,13 +427,35 @@ fn check_resolution(r: f64, source: &str, line: Option<usize>) -> Result<(), Spe
 /// Reads and checks a map_server map file; the image path is joined to the file's directory.
 pub fn read_map_file(path: &Path) -> Result<MapMeta, SpecFileError> {
     let (text, source) = super::room_file::read_spec_file(path, "map file")?;
+    parse_map_text(&text, &source, path.parent().unwrap_or(Path::new("")))
+}
+
+/// A map received whole (a map_server YAML and its image's bytes, as `dvnav serve`'s `SetMap`
+/// gets them): the room, its frame, the cells. `source` names it in errors; the YAML's `image`
+/// is not read from disk.
+pub fn from_bytes(source: &str, map_yaml: &str, image: &[u8]) -> Result<GridMap, SpecFileError> {
+    // The image comes with the text, so the text need not name one.
+    let text = match line_of_key(map_yaml, "image") {
+        Some(_) => map_yaml.to_string(),
+        None => format!("{map_yaml}\nimage: {source}\n"),
+    };
+    let meta = parse_map_text(&text, source, Path::new(""))?;
+    let reader = image::ImageReader::new(std::io::Cursor::new(image));
+    let grid = decode_grid(&meta, reader, source, "the image")?;
+    let (spec, frame) = room_spec("map", &meta, &grid, source)?;
+    Ok(GridMap { spec, frame, meta, grid })
+}
+
+/// Checks a map_server map file's text; its image path is joined to `dir`.
+fn parse_map_text(text: &str, source: &str, dir: &Path) -> Result<MapMeta, SpecFileError> {
+    let source = source.to_string();
     let err = |key: &str, reason: String| SpecFileError {
         source: source.clone(),
-        line: line_of_key(&text, key),
+        line: line_of_key(text, key),
         key: key.to_string(),
         reason,
     };
-    let file: MapFile = serde_yaml_ng::from_str(&text).map_err(|e| {
+    let file: MapFile = serde_yaml_ng::from_str(text).map_err(|e| {
         let msg = e.to_string();
         let line = e.location().map(|l| l.line());
         let mut reason = match msg.rfind(" at line ") {
@@ -450,7 +472,7 @@ pub fn read_map_file(path: &Path) -> Result<MapMeta, SpecFileError> {
             );
             k
         } else {
-            line.and_then(|l| key_on_line(&text, l)).unwrap_or_default()
+            line.and_then(|l| key_on_line(text, l)).unwrap_or_default()
         };
         // serde_yaml_ng prefixes the path of a nested value ("origin[1]: …"); keep the message.
         if let Some((prefix, rest)) = reason.split_once(": ")
@@ -460,7 +482,7 @@ pub fn read_map_file(path: &Path) -> Result<MapMeta, SpecFileError> {
         }
         SpecFileError { source: source.clone(), line, key, reason }
     })?;
-    check_resolution(file.resolution, &source, line_of_key(&text, "resolution"))?;
+    check_resolution(file.resolution, &source, line_of_key(text, "resolution"))?;
     let origin: [f64; 3] = file
         .origin
         .as_slice()
@@ -498,7 +520,6 @@ pub fn read_map_file(path: &Path) -> Result<MapMeta, SpecFileError> {
     if file.image.trim().is_empty() {
         return Err(err("image", "is empty; it names the map's PGM or PNG file".into()));
     }
-    let dir = path.parent().unwrap_or(Path::new(""));
     Ok(MapMeta {
         image: dir.join(&file.image),
         resolution: file.resolution,
@@ -524,23 +545,40 @@ pub fn read_grid(meta: &MapMeta, source: &str) -> Result<OccupancyGrid, SpecFile
         return Err(err(format!("no such file: {}", path.display())));
     }
     let reader = image::ImageReader::open(path)
-        .and_then(|r| r.with_guessed_format())
         .map_err(|e| err(format!("cannot read {}: {e}", path.display())))?;
+    decode_grid(meta, reader, source, &path.display().to_string())
+}
+
+/// Decodes an image (PNG or PGM, at most [`MAX_SIDE_PX`] a side) into the cells of `meta`.
+fn decode_grid<R: std::io::BufRead + std::io::Seek>(
+    meta: &MapMeta,
+    reader: image::ImageReader<R>,
+    source: &str,
+    what: &str,
+) -> Result<OccupancyGrid, SpecFileError> {
+    let err = |reason: String| SpecFileError {
+        source: source.to_string(),
+        line: None,
+        key: "image".into(),
+        reason,
+    };
+    let reader =
+        reader.with_guessed_format().map_err(|e| err(format!("cannot read {what}: {e}")))?;
     if !matches!(reader.format(), Some(image::ImageFormat::Png | image::ImageFormat::Pnm)) {
-        return Err(err(format!("{} is not a PNG or PGM image", path.display())));
+        return Err(err(format!("{} is not a PNG or PGM image", what)));
     }
-    let unreadable = |e: image::ImageError| err(format!("cannot decode {}: {e}", path.display()));
+    let unreadable = |e: image::ImageError| err(format!("cannot decode {}: {e}", what));
     let decoder = reader.into_decoder().map_err(unreadable)?;
     let (w, h) = image::ImageDecoder::dimensions(&decoder);
     if w > MAX_SIDE_PX || h > MAX_SIDE_PX {
         return Err(err(format!(
             "{} is {w} x {h} px, larger than the {MAX_SIDE_PX} x {MAX_SIDE_PX} px a map may be \
              (crop it, or halve its resolution)",
-            path.display()
+            what
         )));
     }
     if w == 0 || h == 0 {
-        return Err(err(format!("{} has no pixels", path.display())));
+        return Err(err(format!("{} has no pixels", what)));
     }
     let img = image::DynamicImage::from_decoder(decoder).map_err(unreadable)?;
     let has_alpha = img.color().has_alpha();

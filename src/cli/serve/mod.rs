@@ -256,6 +256,7 @@ fn status(e: ControllerError) -> Status {
         ControllerError::TooManyRobots(_) => Status::resource_exhausted(msg),
         ControllerError::FootprintChanged { .. } => Status::failed_precondition(msg),
         ControllerError::Policy(_) => Status::internal(msg),
+        ControllerError::NoMap => Status::failed_precondition(msg),
     }
 }
 
@@ -363,6 +364,8 @@ fn act_reply(c: Command, model: &ModelId) -> pb::ActReply {
         subgoal_y: route.map_or(0.0, |r| r.subgoal[1]),
         remaining_m: route.map_or(0.0, |r| r.remaining_m),
         replan_wanted: route.is_some_and(|r| r.replan_wanted),
+        replans: route.map_or(0, |r| r.replans),
+        blocked: route.is_some_and(|r| r.blocked),
         v: c.v,
         omega: c.omega,
         mu: c.mu,
@@ -372,6 +375,14 @@ fn act_reply(c: Command, model: &ModelId) -> pb::ActReply {
         arrived: c.arrived,
         goal_tolerance: c.goal_tolerance,
         filled_beams: c.filled_beams as u32,
+    }
+}
+
+fn route_reply(set: dvnav_nav::dvst::controller::RouteSet) -> pb::SetRouteReply {
+    pb::SetRouteReply {
+        poses: set.poses as u32,
+        length_m: set.length_m,
+        lookahead_m: set.lookahead_m,
     }
 }
 
@@ -505,11 +516,63 @@ impl Controller for ControllerService {
             self.refuse(e)
         })?;
         tracing::info!(robot = %r.robot_id, poses = set.poses, length_m = set.length_m, "route set");
-        Ok(Response::new(pb::SetRouteReply {
-            poses: set.poses as u32,
-            length_m: set.length_m,
-            lookahead_m: set.lookahead_m,
+        Ok(Response::new(route_reply(set)))
+    }
+
+    async fn set_map(
+        &self,
+        req: Request<pb::SetMapRequest>,
+    ) -> Result<Response<pb::SetMapReply>, Status> {
+        self.authorize(&req)?;
+        let r = req.into_inner();
+        // Decoding and rastering a building's map takes a while: off the async workers.
+        let ctl = self.ctl.clone();
+        let map = tokio::task::spawn_blocking(move || ctl.set_map(&r.map_yaml, &r.image))
+            .await
+            .map_err(|e| Status::internal(format!("SetMap failed: {e}")))?
+            .map_err(|e| {
+                tracing::warn!(error = %e, "SetMap refused");
+                self.refuse(e)
+            })?;
+        tracing::info!(
+            width = map.width,
+            height = map.height,
+            resolution = map.resolution,
+            "map set"
+        );
+        Ok(Response::new(pb::SetMapReply {
+            width: map.width as u32,
+            height: map.height as u32,
+            resolution: map.resolution,
         }))
+    }
+
+    async fn set_goal(
+        &self,
+        req: Request<pb::SetGoalRequest>,
+    ) -> Result<Response<pb::SetRouteReply>, Status> {
+        self.authorize(&req)?;
+        let r = req.into_inner();
+        let missing = |field: &str| ControllerError::InvalidArgument {
+            field: field.into(),
+            reason: "is required: the robot's pose now and its goal, in the map frame".into(),
+        };
+        let start = r.start.ok_or_else(|| self.refuse(missing("start")))?;
+        let goal = r.goal.ok_or_else(|| self.refuse(missing("goal")))?;
+        let start = dvnav_sim::Pose2::new(start.x, start.y, start.yaw);
+        // Planning takes milliseconds on a building's map: off the async workers, so other
+        // robots' Act calls are not held up.
+        let ctl = self.ctl.clone();
+        let id = r.robot_id.clone();
+        let set = tokio::task::spawn_blocking(move || ctl.set_goal(&id, start, [goal.x, goal.y]))
+            .await
+            .map_err(|e| Status::internal(format!("SetGoal failed: {e}")))?
+            .map_err(|e| {
+                tracing::warn!(robot = %r.robot_id, error = %e, "SetGoal refused");
+                self.refuse(e)
+            })?;
+        tracing::info!(robot = %r.robot_id, poses = set.poses, length_m = set.length_m, "goal planned");
+        Ok(Response::new(route_reply(set)))
     }
 }
 

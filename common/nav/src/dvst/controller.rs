@@ -35,7 +35,7 @@
 use super::footprint_file::VariedRobot;
 use super::laser_scan::{self, BeamLayout, LaserScan, MAX_RANGE_M};
 use super::robots::{RobotTable, TableFull};
-use super::route::{RobotRoute, RouteRefusal, RouteStatus, check_pose, check_route};
+use super::route::{PlanMap, RobotRoute, RouteRefusal, RouteStatus, check_pose, check_route};
 use super::scale::MetaRobot;
 use super::shared_policy::{Reply, SharedPolicy};
 use super::transfer::{VelocityBounds, transfer_observation, transfer_policy};
@@ -237,6 +237,9 @@ pub enum ControllerError {
     /// The policy failed on a valid request.
     #[error("the policy failed: {0:#}")]
     Policy(anyhow::Error),
+    /// A goal to plan for, but no map to plan on.
+    #[error("no map to plan on: send one with SetMap first (or the route itself with SetRoute)")]
+    NoMap,
 }
 
 impl From<RouteRefusal> for ControllerError {
@@ -294,6 +297,8 @@ pub struct DvstController {
     routes: Mutex<RobotTable<Arc<Mutex<RobotRoute>>>>,
     /// The subgoal rule's constants: the model's `env.subgoals`, else the defaults.
     subgoals: SubgoalConfig,
+    /// The map `SetGoal` plans on (`SetMap`).
+    map: Mutex<Option<Arc<PlanMap>>>,
     /// The robot of `dvnav serve --footprint`: every robot without one of its own.
     default_robot: Arc<FootprintState>,
     next_version: AtomicU64,
@@ -349,6 +354,7 @@ impl DvstController {
             robots: Mutex::new(RobotTable::new(DEFAULT_MAX_ROBOTS, DEFAULT_ROBOT_IDLE)),
             routes: Mutex::new(RobotTable::new(DEFAULT_MAX_ROBOTS, DEFAULT_ROBOT_IDLE)),
             subgoals: cfg.env.subgoals.clone().unwrap_or_default(),
+            map: Mutex::new(None),
             default_robot,
             next_version: AtomicU64::new(2),
             beams: lidar.beams,
@@ -539,6 +545,45 @@ impl DvstController {
         let mu = self.footprint(robot_id).mu;
         let route = RobotRoute::new(self.subgoals.clone(), mu, points);
         let set = RouteSet { poses, length_m: route.length_m(), lookahead_m: route.lookahead_m() };
+        self.routes_table().set(robot_id, Instant::now(), Arc::new(Mutex::new(route)))?;
+        Ok(set)
+    }
+
+    /// The map `SetGoal` plans on from now on (a map_server YAML and its image's bytes);
+    /// robots already on a planned route keep the map they were planned on. Returns it.
+    pub fn set_map(&self, map_yaml: &str, image: &[u8]) -> Result<Arc<PlanMap>, ControllerError> {
+        let map = Arc::new(PlanMap::from_bytes(map_yaml, image)?);
+        *self.map.lock().unwrap_or_else(PoisonError::into_inner) = Some(map.clone());
+        Ok(map)
+    }
+
+    /// Robot `robot_id`, at `start` on the map (`SetMap`), is sent to `goal`: the server plans
+    /// for its footprint (bounding radius plus margin), it follows the path as a route, and
+    /// the server replans when it strays or stalls. Refused naming `start` or `goal` when a
+    /// point is off the map, in an obstacle or unreachable for the robot's size.
+    pub fn set_goal(
+        &self,
+        robot_id: &str,
+        start: Pose2,
+        goal: [f64; 2],
+    ) -> Result<RouteSet, ControllerError> {
+        check_robot_id(robot_id)?;
+        fn rename(r: RouteRefusal, field: &str) -> RouteRefusal {
+            RouteRefusal { field: r.field.replacen("pose", field, 1), ..r }
+        }
+        check_pose(start).map_err(|r| rename(r, "start"))?;
+        check_pose(Pose2::new(goal[0], goal[1], 0.0)).map_err(|r| rename(r, "goal"))?;
+        let map = self.map.lock().unwrap_or_else(PoisonError::into_inner).clone();
+        let map = map.ok_or(ControllerError::NoMap)?;
+        let fp = self.footprint(robot_id);
+        let radius = fp.robot.footprint.bounding_radius() + fp.robot.margin;
+        let route =
+            RobotRoute::planned(self.subgoals.clone(), fp.mu, map, radius, start.position(), goal)?;
+        let set = RouteSet {
+            poses: route.pose_count(),
+            length_m: route.length_m(),
+            lookahead_m: route.lookahead_m(),
+        };
         self.routes_table().set(robot_id, Instant::now(), Arc::new(Mutex::new(route)))?;
         Ok(set)
     }

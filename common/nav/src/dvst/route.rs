@@ -3,10 +3,104 @@
 //! path's frame; the controller picks the subgoal with the one subgoal rule of the simulator
 //! ([`dvnav_sim::subgoal`]), holds the robot in the rotation shim after a new path, and says when
 //! the robot has strayed or stalled so that its planner should plan again.
+//!
+//! A robot without a planner of its own sends a goal instead (`SetGoal`), on a map the server
+//! was given (`SetMap`, a [`PlanMap`]): the server plans for that robot's footprint (bounding
+//! radius plus margin) with [`dvnav_sim::planner`], and replans itself when the robot strays or
+//! stalls, reporting `blocked` when no path remains.
 
 use dvnav_sim::Pose2;
-use dvnav_sim::planner::PlannedPath;
+use dvnav_sim::grid::ClearanceMap;
+use dvnav_sim::grid_map::{self, MapFrame};
+use dvnav_sim::planner::{self, PlanError, PlannedPath, PlannerConfig};
 use dvnav_sim::subgoal::{RouteGuide, SubgoalConfig};
+use std::sync::Arc;
+
+/// The largest map file text `SetMap` takes (bytes).
+pub const MAX_MAP_YAML: usize = 64 * 1024;
+/// The largest map image `SetMap` takes (bytes); its side is bounded too
+/// ([`grid_map::MAX_SIDE_PX`]).
+pub const MAX_MAP_IMAGE: usize = 32 * 1024 * 1024;
+
+/// A map the controller plans on: the room raster of a map_server map and its frame.
+#[derive(Debug)]
+pub struct PlanMap {
+    frame: MapFrame,
+    clearance: ClearanceMap,
+    /// Image size (px) and resolution (m/px).
+    pub width: usize,
+    /// See `width`.
+    pub height: usize,
+    /// See `width`.
+    pub resolution: f64,
+}
+
+impl PlanMap {
+    /// A map_server YAML and its image's bytes; refused naming `map_yaml` or `image`.
+    pub fn from_bytes(map_yaml: &str, image: &[u8]) -> Result<PlanMap, RouteRefusal> {
+        if map_yaml.len() > MAX_MAP_YAML {
+            let why = format!("{} bytes; a map file has at most {MAX_MAP_YAML}", map_yaml.len());
+            return Err(RouteRefusal { field: "map_yaml".into(), reason: why });
+        }
+        if image.len() > MAX_MAP_IMAGE {
+            let why = format!("{} bytes; a map image has at most {MAX_MAP_IMAGE}", image.len());
+            return Err(RouteRefusal { field: "image".into(), reason: why });
+        }
+        let map = grid_map::from_bytes("SetMap", map_yaml, image).map_err(|e| {
+            let field = if e.key == "image" { "image" } else { "map_yaml" };
+            let line = e.line.map(|l| format!("line {l}: ")).unwrap_or_default();
+            let key = if e.key.is_empty() { String::new() } else { format!("`{}`: ", e.key) };
+            RouteRefusal { field: field.into(), reason: format!("{line}{key}{}", e.reason) }
+        })?;
+        Ok(PlanMap {
+            clearance: ClearanceMap::of_room(&map.spec),
+            width: map.grid.width,
+            height: map.grid.height,
+            resolution: map.meta.resolution,
+            frame: map.frame,
+        })
+    }
+
+    /// A path (map frame) from `start` to `goal` (map frame) for a disc of `radius`; refused
+    /// naming `start` or `goal`.
+    pub fn plan(
+        &self,
+        radius: f64,
+        start: [f64; 2],
+        goal: [f64; 2],
+        cfg: &PlannerConfig,
+    ) -> Result<Vec<[f64; 2]>, RouteRefusal> {
+        let (a, b) = (self.frame.map_to_room(start), self.frame.map_to_room(goal));
+        let path = planner::plan(&self.clearance, radius, a, b, cfg).map_err(|e| {
+            let field = match &e {
+                PlanError::OffMap { which, .. } | PlanError::NoRoom { which, .. } => *which,
+                PlanError::Unreachable { .. } => "goal",
+            };
+            // The error's coordinates are the room's; name the map's.
+            let reason = match e {
+                PlanError::OffMap { which, .. } => {
+                    let p = if which == "start" { start } else { goal };
+                    format!("({:.2}, {:.2}) lies outside the map", p[0], p[1])
+                }
+                PlanError::NoRoom { which, radius, .. } => {
+                    let p = if which == "start" { start } else { goal };
+                    format!(
+                        "({:.2}, {:.2}) has no room for a robot of radius {radius:.3} m (inside \
+                         an obstacle, unknown space or too close to one)",
+                        p[0], p[1]
+                    )
+                }
+                PlanError::Unreachable { radius, .. } => format!(
+                    "({:.2}, {:.2}) cannot be reached from the start by a robot of radius \
+                     {radius:.3} m",
+                    goal[0], goal[1]
+                ),
+            };
+            RouteRefusal { field: field.into(), reason }
+        })?;
+        Ok(path.points.into_iter().map(|q| self.frame.room_to_map(q)).collect())
+    }
+}
 
 /// Most poses a route may have.
 pub const MAX_ROUTE_POSES: usize = 100_000;
@@ -67,14 +161,29 @@ pub struct RouteStatus {
     /// Path left to the route's goal (m).
     pub remaining_m: f64,
     /// The robot strayed from the path or made no progress along it: its planner should send
-    /// a new route.
+    /// a new route (a route the server planned, `SetGoal`, it replans itself).
     pub replan_wanted: bool,
+    /// Plans the server made after the first (`SetGoal` routes).
+    pub replans: u32,
+    /// A replan found no path: the robot heads for the goal itself.
+    pub blocked: bool,
+}
+
+/// What the server replans a `SetGoal` route with.
+#[derive(Clone, Debug)]
+struct Replanner {
+    map: Arc<PlanMap>,
+    /// The robot's bounding radius plus margin (m).
+    radius: f64,
 }
 
 /// One robot's route: the subgoal rule on the path it sent.
 #[derive(Clone, Debug)]
 pub struct RobotRoute {
     guide: RouteGuide,
+    replanner: Option<Replanner>,
+    replans: u32,
+    blocked: bool,
 }
 
 impl RobotRoute {
@@ -83,12 +192,34 @@ impl RobotRoute {
         let goal = *points.last().expect("a checked route has a pose");
         let mut guide = RouteGuide::new(cfg, mu, goal);
         guide.set_path(PlannedPath::new(points));
-        RobotRoute { guide }
+        RobotRoute { guide, replanner: None, replans: 0, blocked: false }
+    }
+
+    /// Plans on `map` from `start` to `goal` (map frame) for a robot of bounding `radius` (plus
+    /// margin) and DVST scale `mu`, and follows the path, replanning on the map when the robot
+    /// strays or stalls.
+    pub fn planned(
+        cfg: SubgoalConfig,
+        mu: f64,
+        map: Arc<PlanMap>,
+        radius: f64,
+        start: [f64; 2],
+        goal: [f64; 2],
+    ) -> Result<RobotRoute, RouteRefusal> {
+        let points = map.plan(radius, start, goal, &cfg.planner)?;
+        let mut route = RobotRoute::new(cfg, mu, points);
+        route.replanner = Some(Replanner { map, radius });
+        Ok(route)
     }
 
     /// The route's goal.
     pub fn goal(&self) -> [f64; 2] {
         self.guide.goal()
+    }
+
+    /// Vertices of its current path.
+    pub fn pose_count(&self) -> usize {
+        self.guide.path().map_or(0, |p| p.points.len())
     }
 
     /// Its length (m).
@@ -109,11 +240,25 @@ impl RobotRoute {
         dt: f64,
         omega_max: f64,
     ) -> (RouteStatus, Option<(f64, f64)>) {
-        let g = self.guide.update(pose, dt);
+        let mut g = self.guide.update(pose, dt);
+        if let (Some(_), Some(r)) = (g.replan, &self.replanner) {
+            let cfg = self.guide.config().planner.clone();
+            match r.map.plan(r.radius, pose.position(), self.guide.goal(), &cfg) {
+                Ok(points) => self.guide.set_path(PlannedPath::new(points)),
+                Err(_) => {
+                    self.blocked = true;
+                    self.guide.clear_path();
+                }
+            }
+            self.replans += 1;
+            g = self.guide.update(pose, 0.0);
+        }
         let status = RouteStatus {
             subgoal: g.subgoal,
             remaining_m: g.remaining_m,
-            replan_wanted: g.replan.is_some(),
+            replan_wanted: g.replan.is_some() && self.replanner.is_none(),
+            replans: self.replans,
+            blocked: self.blocked,
         };
         (status, self.guide.shim_command(pose, omega_max))
     }

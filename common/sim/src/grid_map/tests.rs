@@ -499,3 +499,22 @@ fn every_map_in_maps_loads_with_free_space_and_scans_like_rapier() {
         );
     }
 }
+
+#[test]
+fn a_map_received_as_bytes_is_the_map_read_from_its_files() {
+    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../../maps");
+    let yaml = std::fs::read_to_string(format!("{dir}/aws_small_house.yaml")).unwrap();
+    let image = std::fs::read(format!("{dir}/aws_small_house.png")).unwrap();
+    let sent = from_bytes("SetMap", &yaml, &image).unwrap();
+    let read = load(&format!("{dir}/aws_small_house.yaml")).unwrap();
+    assert_eq!(sent.spec.obstacles, read.spec.obstacles);
+    assert_eq!(sent.frame, read.frame);
+    let e = from_bytes("SetMap", &yaml, &image[..100]).unwrap_err();
+    assert_eq!(e.key, "image", "{e}");
+    // The text need not name the image it comes with.
+    let unnamed: String =
+        yaml.lines().filter(|l| !l.starts_with("image")).collect::<Vec<_>>().join("\n");
+    assert_eq!(from_bytes("SetMap", &unnamed, &image).unwrap().frame, read.frame);
+    let e = from_bytes("SetMap", "resolution: 0.05\n", &image).unwrap_err();
+    assert_eq!(e.key, "origin", "{e}");
+}
