@@ -88,3 +88,16 @@ def test_bad_bags_and_topics_are_clear_errors(dvnav, tmp_path):
     assert r.returncode != 0 and "no such bag" in r.stderr, r.stderr
     r = replay(dvnav, bag, "--goal", "1;0", check=False)
     assert r.returncode != 0 and "not a goal" in r.stderr, r.stderr
+
+
+def test_topics_without_the_slash_and_a_bag_without_odometry(dvnav, tmp_path):
+    bag = write_bag(tmp_path / "bag", scans=12)
+    out = tmp_path / "c.csv"
+    # `scan` is `/scan`.
+    replay(dvnav, bag, "--goal", "3,0", "--scan-topic", "scan", "--odom-topic", "odom", "--out", str(out))
+    assert len(list(csv.DictReader(out.open()))) == 10
+    # No odometry on the topic named: a fixed sensor at the odometry origin, every scan replayed.
+    r = replay(dvnav, bag, "--goal", "3,0", "--odom-topic", "/wheel_odom", "--out", str(out))
+    assert "fixed sensor" in r.stderr, r.stderr
+    rows = list(csv.DictReader(out.open()))
+    assert len(rows) == 12 and all(float(row["x"]) == 0.0 and float(row["odom_v"]) == 0.0 for row in rows)

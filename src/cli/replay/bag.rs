@@ -38,9 +38,11 @@ fn mcap_files(path: &Path) -> anyhow::Result<Vec<PathBuf>> {
 }
 
 /// Reads `scan_topic` (sensor_msgs/msg/LaserScan) and `odom_topic` (nav_msgs/msg/Odometry)
-/// from the bag at `path`. A topic that is missing, of another type or not CDR is an error
-/// naming the topics the bag has.
+/// from the bag at `path`; a topic name matches with or without its leading slash (`scan` is
+/// `/scan`). No scan, or a topic of another type or not CDR, is an error naming the topics the
+/// bag has; no odometry is not (a fixed sensor: the caller decides).
 pub fn read(path: &Path, scan_topic: &str, odom_topic: &str) -> anyhow::Result<Recording> {
+    let same = |a: &str, b: &str| a.trim_start_matches('/') == b.trim_start_matches('/');
     let mut rec = Recording::default();
     // topic -> (schema name, message encoding, count)
     let mut seen: BTreeMap<String, (String, String, usize)> = BTreeMap::new();
@@ -62,9 +64,9 @@ pub fn read(path: &Path, scan_topic: &str, odom_topic: &str) -> anyhow::Result<R
                 .entry(topic.clone())
                 .or_insert_with(|| (schema.clone(), m.channel.message_encoding.clone(), 0));
             entry.2 += 1;
-            let want = if topic == scan_topic {
+            let want = if same(topic, scan_topic) {
                 "sensor_msgs/msg/LaserScan"
-            } else if topic == odom_topic {
+            } else if same(topic, odom_topic) {
                 "nav_msgs/msg/Odometry"
             } else {
                 continue;
@@ -79,7 +81,7 @@ pub fn read(path: &Path, scan_topic: &str, odom_topic: &str) -> anyhow::Result<R
             let context = |e: anyhow::Error| {
                 anyhow::anyhow!("{}: {topic} at log time {} ns: {e}", file.display(), m.log_time)
             };
-            if topic == scan_topic {
+            if same(topic, scan_topic) {
                 rec.scans.push((m.log_time, ros::decode(&m.data).map_err(context)?));
             } else {
                 rec.odometry.push((m.log_time, ros::decode(&m.data).map_err(context)?));
@@ -100,12 +102,14 @@ pub fn read(path: &Path, scan_topic: &str, odom_topic: &str) -> anyhow::Result<R
         path.display(),
         topics()
     );
-    anyhow::ensure!(
-        !rec.odometry.is_empty(),
-        "{}: no {odom_topic} messages; {}",
-        path.display(),
-        topics()
-    );
+    if rec.odometry.is_empty() {
+        eprintln!(
+            "replay: {}: no {odom_topic} messages ({}); replaying as a fixed sensor at the origin \
+             of the odometry frame, standing still",
+            path.display(),
+            topics()
+        );
+    }
     // Several files, or a recorder that wrote out of order: by log time, stable.
     rec.scans.sort_by_key(|(t, _)| *t);
     rec.odometry.sort_by_key(|(t, _)| *t);

@@ -162,7 +162,9 @@ fn replay(
     goal: [f64; 2],
 ) -> anyhow::Result<Replayed> {
     let mut odom = rec.odometry.iter().peekable();
-    let mut latest: Option<&ros::Odometry> = None;
+    // Without odometry the sensor stood still at the odometry frame's origin.
+    let fixed = rec.odometry.is_empty().then(ros::Odometry::at_rest);
+    let mut latest: Option<&ros::Odometry> = fixed.as_ref();
     let t0 = rec.scans[0].0;
     let mut out = Replayed { rows: Vec::new(), skipped: 0, scans: Vec::new() };
     for (k, (t, scan)) in rec.scans.into_iter().enumerate() {

@@ -97,6 +97,25 @@ pub struct Odometry {
     pub twist: TwistWithCovariance,
 }
 
+impl Odometry {
+    /// A robot standing still at the odometry frame's origin, heading along x: what a bag
+    /// without odometry (a fixed sensor) is replayed as.
+    pub fn at_rest() -> Odometry {
+        let zero = Vector3 { x: 0.0, y: 0.0, z: 0.0 };
+        let covariance = Covariance([0.0; 18], [0.0; 18]);
+        Odometry {
+            header: Header { stamp: Time { sec: 0, nanosec: 0 }, frame_id: "odom".into() },
+            child_frame_id: "base_link".into(),
+            pose: PoseWithCovariance {
+                position: zero,
+                orientation: Quaternion { x: 0.0, y: 0.0, z: 0.0, w: 1.0 },
+                covariance,
+            },
+            twist: TwistWithCovariance { linear: zero, angular: zero, covariance },
+        }
+    }
+}
+
 /// A CDR message with its 4-byte encapsulation header (either byte order), as a ROS 2 bag
 /// stores it.
 pub fn decode<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> anyhow::Result<T> {
