@@ -11,6 +11,13 @@ dicts: ``lidar={"noise_std": 0.01}``), or ``config=`` names a run config whose `
 ``sensor=`` observes through a real robot's LiDAR: a sensor file (``sensors/*.toml``) or its
 keys as a dict; the scan is simulated at the sensor's mounting and resampled to the meta agent's
 beams as ``dvnav serve`` does.
+
+``tasks="long"`` draws goals 5-10 m away by any route (``"local"``: 2-5 m, a path at most 1.5x
+the straight line), as ``dvnav eval --tasks``; ``subgoals=True`` (or the ``[env.subgoals]`` keys
+as a dict) plans each episode's path for the robot and the observation's goal is the lookahead
+point on it (the progress reward follows the path). ``info["subgoal"]`` gives that point, and
+``info["shim_command"]`` the rotation shim's (v, omega) while it would hold the robot (dvnav
+eval and dvnav serve apply it; a Gymnasium agent decides itself).
 """
 
 from __future__ import annotations
@@ -28,6 +35,12 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from dvnav import _core
+
+#: Start-goal bounds of ``tasks=``: the held-out suite's local tasks and ``dvnav eval``'s long.
+TASKS = {
+    "local": {"min_start_goal_distance": 2.0, "max_start_goal_distance": 5.0, "max_path_ratio": 1.5},
+    "long": {"min_start_goal_distance": 5.0, "max_start_goal_distance": 10.0, "max_path_ratio": 0.0},
+}
 
 #: Outcome codes of the vector environment's ``info["outcome"]``.
 OUTCOMES = ("running", "success", "collision", "timeout", "reset")
@@ -48,6 +61,17 @@ def _core_kwargs(render_mode, footprint, config, env_config) -> dict[str, Any]:
     """Checks the render mode and shapes the arguments both Rust classes take."""
     if render_mode is not None and render_mode not in ("rgb_array",):
         raise ValueError(f"render_mode {render_mode!r}: dvnav renders 'rgb_array' only")
+    env_config = dict(env_config)
+    tasks = env_config.pop("tasks", None)
+    if tasks is not None:
+        if tasks not in TASKS:
+            raise ValueError(f"tasks={tasks!r}: one of {', '.join(map(repr, TASKS))}")
+        env_config = {**TASKS[tasks], **env_config}
+    subgoals = env_config.get("subgoals")
+    if subgoals is True:
+        env_config["subgoals"] = {}
+    elif subgoals is False or subgoals is None:
+        env_config.pop("subgoals", None)
     sensor = env_config.get("sensor")
     if isinstance(sensor, (str, os.PathLike)):
         try:
@@ -123,13 +147,20 @@ class NavEnv(gymnasium.Env):
         info: dict[str, Any] = {}
         if outcome is not None:
             info = {"outcome": outcome, "is_success": outcome == "success"}
-        return obs, float(reward), terminated, truncated, info
+        return obs, float(reward), terminated, truncated, self._route_info(info)
+
+    def _route_info(self, info: dict[str, Any]) -> dict[str, Any]:
+        """With subgoals: the subgoal the observation shows and the rotation shim's command."""
+        subgoal = self._core.subgoal
+        if subgoal is not None:
+            info = {**info, "subgoal": subgoal, "shim_command": self._core.shim_command}
+        return info
 
     def step_velocity(self, v: float, omega: float):
         """Like :meth:`step` with a command in physical units (m/s, rad/s)."""
         obs, reward, terminated, truncated, outcome = self._core.step_velocity(float(v), float(omega))
         info = {} if outcome is None else {"outcome": outcome, "is_success": outcome == "success"}
-        return obs, float(reward), terminated, truncated, info
+        return obs, float(reward), terminated, truncated, self._route_info(info)
 
     def set_room(self, room: str) -> None:
         """Runs the next episodes (from the next reset on) in ``room``: a curriculum's next
@@ -142,7 +173,10 @@ class NavEnv(gymnasium.Env):
         return None
 
     def _reset_info(self) -> dict[str, Any]:
-        return {"room": self._core.room, "start": self._core.start, "goal": self._core.goal}
+        info = {"room": self._core.room, "start": self._core.start, "goal": self._core.goal}
+        if self._core.subgoal is not None:
+            info["path"] = self._core.planned_path
+        return self._route_info(info)
 
     @property
     def pose(self) -> tuple[float, float, float]:

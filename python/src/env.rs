@@ -145,6 +145,27 @@ impl Env {
         (p.x, p.y, p.yaw)
     }
 
+    /// With subgoals (`env.subgoals`): the goal the observation shows (the lookahead point on
+    /// the planned path), else None.
+    #[getter]
+    fn subgoal(&self) -> Option<(f64, f64)> {
+        self.env.route_stats()?;
+        let [x, y] = self.env.observed_goal();
+        Some((x, y))
+    }
+
+    /// With subgoals: the rotation shim's (v, ω) while it would hold the robot, else None.
+    #[getter]
+    fn shim_command(&self) -> Option<(f64, f64)> {
+        self.env.shim_command()
+    }
+
+    /// With subgoals: the current plan's vertices (room frame), else None.
+    #[getter]
+    fn planned_path(&self) -> Option<Vec<(f64, f64)>> {
+        self.env.planned_path().map(|p| p.points.iter().map(|q| (q[0], q[1])).collect())
+    }
+
     /// The goal (x, y).
     #[getter]
     fn goal(&self) -> (f64, f64) {

@@ -1,5 +1,7 @@
 """dvnav/Nav-v0 as Gymnasium defines an environment: API, spaces, determinism, config, errors."""
 
+import math
+
 import gymnasium
 import numpy as np
 import pytest
@@ -166,3 +168,22 @@ def test_frames_come_from_dvnavs_renderer():
     assert frame.shape == (128, 128, 3) and frame.dtype == np.uint8
     assert len(np.unique(frame.reshape(-1, 3), axis=0)) > 5, "room, robot, rays, goal"
     assert env.metadata["render_fps"] == pytest.approx(5.0), "one frame per control period"
+
+
+def test_long_tasks_with_subgoals_observe_the_lookahead_point():
+    env = gymnasium.make("dvnav/Nav-v0", room="generated:rooms:8001", seed=2, tasks="long", subgoals=True)
+    obs, info = env.reset()
+    start, goal = info["start"], info["goal"]
+    assert 5.0 <= math.hypot(goal[0] - start[0], goal[1] - start[1]) <= 10.0
+    path, sub = info["path"], info["subgoal"]
+    assert path[0] == pytest.approx(start[:2]) and path[-1] == pytest.approx(goal)
+    # The observation's goal is the lookahead point on the path, not the goal.
+    assert obs[-4] == pytest.approx(math.hypot(sub[0] - start[0], sub[1] - start[1]), abs=1e-4)
+    assert obs[-4] <= 1.5 + 1e-4
+    assert env.unwrapped.env_config["subgoals"]["lookahead_m"] == 1.5
+    _, _, _, _, info = env.step(np.zeros(2, np.float32))
+    assert "subgoal" in info and "shim_command" in info
+    plain = gymnasium.make("dvnav/Nav-v0", room="env3", seed=2)
+    assert "subgoal" not in plain.reset()[1]
+    with pytest.raises(ValueError, match="tasks="):
+        gymnasium.make("dvnav/Nav-v0", room="env3", tasks="medium")
