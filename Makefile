@@ -1,7 +1,7 @@
 # dvnav — common tasks. `make test` is what CI runs (.ci/run).
 CARGO ?= cargo
 
-.PHONY: all build release test test-learning check-mcap check-deploy test-multihost test-ros2 python test-python bench-peers lint fmt bench torch-venv train heldout cuda-toolkit build-cuda gpu-bin gpu-check clean
+.PHONY: all build release test test-learning check-mcap check-deploy test-multihost test-ros2 python test-python bench-peers lint fmt bench torch-venv train heldout heldout-long cuda-toolkit build-cuda gpu-bin gpu-check clean
 
 all: build
 
@@ -160,7 +160,12 @@ torch-venv:
 # 2 cores with the defaults below. HELDOUT_ARGS="--checkpoint runs/x/checkpoints/ckpt-N" for another agent.
 HELDOUT_ARGS ?= --checkpoint models/meta-r0.2 --episodes 20 --map-episodes 50
 heldout: release
-	$(PYTHON) scripts/heldout_suite.py --dvnav ./target/release/dvnav $(HELDOUT_ARGS) --out runs/heldout/suite.json
+	$(PYTHON) scripts/heldout_suite.py --dvnav ./target/release/dvnav $(HELDOUT_ARGS) --tasks local --out runs/heldout/suite.json
+
+# The long-task suites (issue 28): goals 5-10 m away by any route, with the planner's subgoals and
+# mapless, clean and noisy; ~25 min on 2 cores. Figures: docs/results.md, "Through a whole building".
+heldout-long: release
+	$(PYTHON) scripts/heldout_suite.py --dvnav ./target/release/dvnav $(HELDOUT_ARGS) --tasks long --out runs/heldout/long.json
 
 # The CUDA toolkit that the `cuda` feature builds with: CUDA 13.0's nvcc, headers, cuBLAS,
 # cuRAND, NVRTC and runtime from PyPI into .venv-cuda/ (~700 MB download once), and a stub
