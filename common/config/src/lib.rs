@@ -792,6 +792,16 @@ mod tests {
     }
 
     #[test]
+    fn the_subgoals_config_is_the_defaults_with_subgoals_and_no_shim() {
+        let c = Config::from_toml_str(include_str!("../../../configs/subgoals.toml")).unwrap();
+        c.validate().unwrap();
+        let sg = c.env.subgoals.clone().unwrap();
+        assert!(sg.follow && !sg.rotation_shim);
+        let without = Config { env: EnvConfig { subgoals: None, ..c.env.clone() }, ..c };
+        assert_eq!(without, Config::default());
+    }
+
+    #[test]
     fn the_generalist_config_is_the_defaults_with_room_sets_robustness_and_smoothness() {
         let g = Config::from_toml_str(include_str!("../../../configs/generalist.toml")).unwrap();
         g.validate().unwrap();
