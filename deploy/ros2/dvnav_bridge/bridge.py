@@ -59,6 +59,8 @@ class BridgeCore:
         # poses come from on_pose (e.g. /amcl_pose in the map frame).
         self.route = False
         self.pose: tuple[float, float, float] | None = None
+        # A map sent to the server (on_map): goals are then planned by the server (SetGoal).
+        self.has_map = False
 
     def connect(self) -> "pb2.InfoReply":
         """Sets the robot's footprint (if it has a file) and reads what the server expects."""
@@ -88,10 +90,43 @@ class BridgeCore:
         self.odom, self.odom_at = msg, now
 
     def on_goal(self, msg) -> None:
-        """A new goal: driven mapless (straight for it) until a plan for it comes."""
+        """A new goal: with a map (on_map), the server plans the route from the robot's pose;
+        without one, driven mapless (straight for it) until a plan for it comes (on_plan)."""
         self.goal = conversion.goal_xy(msg)
-        if self.route:
+        if self.has_map and self._route_pose() is not None:
+            x, y, yaw = self._route_pose()
+            self.stub.SetGoal(
+                pb2.SetGoalRequest(
+                    robot_id=self.robot_id,
+                    start=pb2.Pose2D(x=x, y=y, yaw=yaw),
+                    goal=pb2.Pose2D(x=self.goal[0], y=self.goal[1], yaw=0.0),
+                ),
+                metadata=self.metadata,
+                timeout=max(self.call_timeout_s, 2.0),
+            )
+            self.route = True
+        elif self.route:
             self._set_route([])
+
+    def on_map(self, msg) -> "pb2.SetMapReply":
+        """A nav_msgs/OccupancyGrid (`/map`): sent to the server, which plans the next goals."""
+        yaml, pgm = conversion.occupancy_grid_map(msg)
+        reply = self.stub.SetMap(
+            pb2.SetMapRequest(map_yaml=yaml, image=pgm),
+            metadata=self.metadata,
+            timeout=max(self.call_timeout_s, 10.0),
+        )
+        self.has_map = True
+        return reply
+
+    def _route_pose(self) -> tuple[float, float, float] | None:
+        """The robot's pose in the route's frame: from on_pose, else the odometry's."""
+        if self.pose is not None:
+            return self.pose
+        if self.odom is None:
+            return None
+        s = conversion.robot_state(self.odom)
+        return (s.x, s.y, s.yaw)
 
     def on_plan(self, msg) -> None:
         """A nav_msgs/Path from the robot's planner: the controller follows it from now on

@@ -76,6 +76,36 @@ def path_points(path) -> list[tuple[float, float]]:
     return [(float(p.pose.position.x), float(p.pose.position.y)) for p in path.poses]
 
 
+def occupancy_grid_map(grid) -> tuple[str, bytes]:
+    """A nav_msgs/OccupancyGrid as map_server files: the YAML text and a PGM image, cells as
+    map_saver writes them (occupancy >= 65: black, 0-25: white, unknown or between: grey), rows
+    flipped (the grid's first row is its bottom, an image's its top)."""
+    info = grid.info
+    w, h = int(info.width), int(info.height)
+    data = list(grid.data)
+    if len(data) != w * h:
+        raise ValueError(f"OccupancyGrid has {len(data)} cells for {w} x {h}")
+
+    def pixel(v: int) -> int:
+        if v < 0:
+            return 205
+        if v >= 65:
+            return 0
+        if v <= 25:
+            return 254
+        return 205
+
+    rows = [bytes(pixel(int(v)) for v in data[r * w:(r + 1) * w]) for r in range(h)]
+    pgm = f"P5\n{w} {h}\n255\n".encode() + b"".join(reversed(rows))
+    o = info.origin
+    yaml = (
+        f"image: map.pgm\nresolution: {float(info.resolution)!r}\n"
+        f"origin: [{float(o.position.x)!r}, {float(o.position.y)!r}, {yaw_of(o.orientation)!r}]\n"
+        "negate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"
+    )
+    return yaml, pgm
+
+
 def set_route_request(pb2, robot_id: str, points):
     """SetRoute for `points`, or one that clears the robot's route when there are none."""
     if not points:

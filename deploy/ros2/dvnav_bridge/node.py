@@ -1,7 +1,8 @@
 """The ROS 2 node: subscribes sensor_msgs/LaserScan (`scan`), nav_msgs/Odometry (`odom`) and
 geometry_msgs/PoseStamped (`goal_pose`, in the odometry frame), calls `dvnav serve` at the
 control period and publishes geometry_msgs/Twist on `cmd_vel`; a zero Twist on arrival, on a
-stale scan or odometry, and on a server error. With a planner: nav_msgs/Path on `plan` is
+stale scan or odometry, and on a server error. With a map (nav_msgs/OccupancyGrid on `map`)
+the server plans each goal itself (SetMap, SetGoal). With a planner: nav_msgs/Path on `plan` is
 followed by subgoals (SetRoute), the robot's pose from `odom` or, with `-p pose_topic:=amcl_pose`,
 from that geometry_msgs/PoseWithCovarianceStamped (the plan's frame); the subgoal is published
 on `dvnav/subgoal` (geometry_msgs/PointStamped) and a wanted replan is logged. See
@@ -23,7 +24,8 @@ def main(args=None) -> None:
     # the control cycle import (and are tested) without them.
     import rclpy
     from geometry_msgs.msg import Point, PointStamped, PoseStamped, PoseWithCovarianceStamped, Twist, Vector3
-    from nav_msgs.msg import Odometry, Path
+    from nav_msgs.msg import OccupancyGrid, Odometry, Path
+    from rclpy.qos import DurabilityPolicy, QoSProfile
     from rclpy.node import Node
     from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import LaserScan
@@ -65,6 +67,9 @@ def main(args=None) -> None:
             self.create_subscription(Odometry, "odom", self._odom, 20)
             self.create_subscription(PoseStamped, "goal_pose", self._goal, 10)
             self.create_subscription(Path, "plan", self._plan, 10)
+            # map_server publishes the map once, transient local: a late subscriber still gets it.
+            latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+            self.create_subscription(OccupancyGrid, "map", self._map, latched)
             pose_topic = self.declare_parameter("pose_topic", "").value
             if pose_topic:
                 self.create_subscription(PoseWithCovarianceStamped, pose_topic, self.core.on_pose, 10)
@@ -86,8 +91,24 @@ def main(args=None) -> None:
             self.core.on_odom(msg, self._now())
 
         def _goal(self, msg):
-            self.core.on_goal(msg)
+            try:
+                self.core.on_goal(msg)
+            except grpc.RpcError as e:
+                self.core.goal = None
+                self.get_logger().error(f"goal refused: {e.code().name}: {e.details()}")
+                return
             self.get_logger().info(f"goal ({msg.pose.position.x:.2f}, {msg.pose.position.y:.2f})")
+
+        def _map(self, msg):
+            try:
+                reply = self.core.on_map(msg)
+            except grpc.RpcError as e:
+                self.get_logger().error(f"map refused: {e.code().name}: {e.details()}")
+                return
+            self.plan_frame = msg.header.frame_id or "map"
+            self.get_logger().info(
+                f"map {reply.width} x {reply.height} at {reply.resolution} m sent: goals are planned by dvnav serve"
+            )
 
         def _plan(self, msg):
             self.core.on_plan(msg)

@@ -1,6 +1,7 @@
 """The bridge's control cycle against a real `dvnav serve`, fed real ROS 2 messages."""
 
 import grpc
+import numpy as np
 import pytest
 
 from conftest import REPO, T, corridor_scan, goal_pose, header, odometry, quaternion, through_cdr
@@ -98,3 +99,43 @@ def test_follows_a_plan_by_subgoals_and_arrives_at_its_end(server):
     b.on_plan(through_cdr(path([(0.0, 0.0), (3.0, 0.0)])))
     b.on_plan(through_cdr(path([])))
     assert not b.route and b.goal is None
+
+
+def door_grid():
+    """A 10 x 6 m OccupancyGrid (0.1 m cells) walled round, split at x = 5 m by a wall with a
+    2 m door at the top (the bridge's robot has a 0.5 m radius); row 0 is the bottom, as
+    map_server publishes it."""
+    w, h = 100, 60
+    data = []
+    for row in range(h):
+        y = row * 0.1 + 0.05
+        for col in range(w):
+            border = row < 2 or row >= h - 2 or col < 2 or col >= w - 2
+            wall = 49 <= col <= 51 and not (3.6 <= y < 5.6)
+            data.append(100 if border or wall else 0)
+    origin = T["geometry_msgs/msg/Pose"](
+        position=T["geometry_msgs/msg/Point"](x=0.0, y=0.0, z=0.0), orientation=quaternion(0.0)
+    )
+    info = T["nav_msgs/msg/MapMetaData"](
+        map_load_time=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0),
+        resolution=0.1, width=w, height=h, origin=origin,
+    )
+    return T["nav_msgs/msg/OccupancyGrid"](header=header(0.0, "map"), info=info, data=np.array(data, dtype=np.int8))
+
+
+def test_with_a_map_the_server_plans_each_goal(server):
+    b = core(server)
+    b.connect()
+    reply = b.on_map(through_cdr(door_grid()))
+    assert (reply.width, reply.height) == (100, 60) and b.has_map
+    b.on_scan(through_cdr(corridor_scan(0.0, y=0.0, yaw=0.0)), now=0.0)
+    b.on_odom(through_cdr(odometry(0.0, 2.0, 2.0, 0.0)), now=0.0)
+    # The goal behind the wall: the server's path goes up through the door.
+    b.on_goal(through_cdr(goal_pose(8.0, 2.0)))
+    assert b.route
+    c = b.step(0.1)
+    assert c.stop is None and c.subgoal is not None and c.subgoal[1] > 2.0, c
+    # A goal inside the wall is refused by the server, naming it.
+    with pytest.raises(grpc.RpcError) as e:
+        b.on_goal(through_cdr(goal_pose(5.0, 2.0)))
+    assert e.value.code() == grpc.StatusCode.INVALID_ARGUMENT and "`goal`" in e.value.details()
