@@ -1,6 +1,8 @@
 //! `dvnav replay --figure`: a replayed bag in the odometry frame: every scan's returns (light,
 //! where the sensor saw them from the pose of the time), the robot's path coloured by the
-//! commanded speed, the start, the goal with its tolerance, and where it arrived.
+//! commanded speed, where the controller's commands alone would have taken it (open loop from
+//! the start), the start, the goal with its tolerance, where it arrived, a scale bar and the
+//! frame's extent; below, the commanded and the recorded ω over time.
 
 use super::{Canvas, INK, Rgba, WHITE, WorldView, text};
 
@@ -18,6 +20,10 @@ pub struct ReplayFigure {
     pub arrived: Option<(f64, [f64; 2])>,
     /// The replay's length (s).
     pub duration_s: f64,
+    /// Where the controller's commands would have taken the robot from the start (open loop).
+    pub commanded_path: Vec<[f64; 2]>,
+    /// At each scan: its time (s), the commanded ω and the recorded (odometry) ω (rad/s).
+    pub omega: Vec<(f64, f64, f64)>,
 }
 
 const MARGIN: f32 = 16.0;
@@ -25,6 +31,11 @@ const TITLE: f32 = 28.0;
 const RETURN: Rgba = Rgba::hex(0x9aa5b1);
 const START: Rgba = Rgba::hex(0x2b6cb0);
 const GOAL: Rgba = Rgba::hex(0x2f855a);
+const COMMANDED: Rgba = Rgba::hex(0x6b46c1);
+const RECORDED: Rgba = Rgba::hex(0xa0aec0);
+/// Height (px) of the ω strip below the map, and of the lines of text under it.
+const STRIP: f32 = 90.0;
+const CAPTION: f32 = 22.0;
 
 /// The figure, `size` pixels square for the map.
 pub fn render(fig: &ReplayFigure, size: u32) -> anyhow::Result<Canvas> {
@@ -40,7 +51,8 @@ pub fn render(fig: &ReplayFigure, size: u32) -> anyhow::Result<Canvas> {
     let side = (hi[0] - lo[0]).max(hi[1] - lo[1]) + 6.0;
     let center = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0];
     let view = WorldView { left: MARGIN, top: TITLE + MARGIN, size: size as f32, center, side };
-    let (w, h) = (size + 2 * MARGIN as u32, size + (TITLE + 2.0 * MARGIN) as u32);
+    let extra = if fig.omega.is_empty() { CAPTION } else { CAPTION + STRIP + CAPTION };
+    let (w, h) = (size + 2 * MARGIN as u32, size + (TITLE + 2.0 * MARGIN + extra) as u32);
     let mut canvas = Canvas::new(w, h, WHITE)?;
     let inside = |(x, y): (f32, f32)| {
         (view.left..view.left + view.size).contains(&x)
@@ -55,6 +67,10 @@ pub fn render(fig: &ReplayFigure, size: u32) -> anyhow::Result<Canvas> {
         let t = (w[1].1.abs() / v_max) as f32;
         let color = Rgba((220.0 * (1.0 - t)) as u8, (160.0 * t) as u8, 60, 255);
         canvas.stroke_polyline(&[view.px(w[0].0), view.px(w[1].0)], false, 3.0, color);
+    }
+    if fig.commanded_path.len() > 1 {
+        let pts: Vec<(f32, f32)> = fig.commanded_path.iter().map(|&p| view.px(p)).collect();
+        canvas.stroke_polyline(&pts, false, 1.5, COMMANDED.alpha(200));
     }
     let (sx, sy) = view.px(fig.path[0].0);
     canvas.fill_circle(sx, sy, 6.0, START);
@@ -75,7 +91,67 @@ pub fn render(fig: &ReplayFigure, size: u32) -> anyhow::Result<Canvas> {
         }
     );
     text::draw(&mut canvas, MARGIN, MARGIN, &title, 2, INK);
+    draw_frame(&mut canvas, &view);
+    let below = view.top + view.size + 6.0;
+    let caption = format!(
+        "x {:.1} .. {:.1} m, y {:.1} .. {:.1} m (odometry frame); purple: the commands, open loop",
+        center[0] - side / 2.0,
+        center[0] + side / 2.0,
+        center[1] - side / 2.0,
+        center[1] + side / 2.0
+    );
+    text::draw(&mut canvas, MARGIN, below, &caption, 1, INK);
+    if !fig.omega.is_empty() {
+        draw_omega(&mut canvas, &fig.omega, fig.duration_s, MARGIN, below + CAPTION, size as f32);
+    }
     Ok(canvas)
+}
+
+/// A border round the map and a scale bar (a round length near a quarter of the view) in its
+/// lower-left corner.
+fn draw_frame(canvas: &mut Canvas, view: &WorldView) {
+    let (l, t, s) = (view.left, view.top, view.size);
+    canvas.stroke_polyline(&[(l, t), (l + s, t), (l + s, t + s), (l, t + s)], true, 1.0, INK);
+    let bar = [0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0]
+        .into_iter()
+        .filter(|&m| m <= view.side / 4.0)
+        .next_back()
+        .unwrap_or(0.5);
+    let px = bar as f32 * view.scale();
+    let (x0, y0) = (l + 10.0, t + s - 12.0);
+    canvas.stroke_polyline(&[(x0, y0), (x0 + px, y0)], false, 2.0, INK);
+    canvas.stroke_polyline(&[(x0, y0 - 4.0), (x0, y0 + 4.0)], false, 2.0, INK);
+    canvas.stroke_polyline(&[(x0 + px, y0 - 4.0), (x0 + px, y0 + 4.0)], false, 2.0, INK);
+    text::draw(canvas, x0, y0 - 14.0, &format!("{bar} m"), 1, INK);
+}
+
+/// ω over time: the commanded (purple) and the recorded (grey), with the zero line and the
+/// extent written beside.
+fn draw_omega(
+    canvas: &mut Canvas,
+    omega: &[(f64, f64, f64)],
+    duration_s: f64,
+    left: f32,
+    top: f32,
+    width: f32,
+) {
+    let max = omega.iter().map(|&(_, c, r)| c.abs().max(r.abs())).fold(1e-6, f64::max);
+    let t_max = duration_s.max(1e-6);
+    let at = |t: f64, w: f64| {
+        (left + (t / t_max) as f32 * width, top + STRIP / 2.0 - (w / max) as f32 * STRIP / 2.0)
+    };
+    let frame =
+        [(left, top), (left + width, top), (left + width, top + STRIP), (left, top + STRIP)];
+    canvas.stroke_polyline(&frame, true, 1.0, INK);
+    canvas.stroke_polyline(&[at(0.0, 0.0), at(t_max, 0.0)], false, 1.0, RECORDED);
+    let recorded: Vec<(f32, f32)> = omega.iter().map(|&(t, _, r)| at(t, r)).collect();
+    canvas.stroke_polyline(&recorded, false, 1.5, RECORDED);
+    let commanded: Vec<(f32, f32)> = omega.iter().map(|&(t, c, _)| at(t, c)).collect();
+    canvas.stroke_polyline(&commanded, false, 1.5, COMMANDED);
+    let label = format!(
+        "omega (rad/s), +-{max:.2}, over {duration_s:.1} s: purple commanded, grey recorded"
+    );
+    text::draw(canvas, left, top + STRIP + 6.0, &label, 1, INK);
 }
 
 #[cfg(test)]
@@ -91,6 +167,8 @@ mod tests {
             tolerance: 0.2,
             arrived: Some((2.0, [2.0, 0.0])),
             duration_s: 2.0,
+            commanded_path: vec![[0.0, 0.0], [0.0, 1.5]],
+            omega: vec![(0.0, 0.5, 0.0), (1.0, -0.5, 0.1), (2.0, 0.0, 0.0)],
         };
         let c = render(&fig, 200).unwrap();
         let view = WorldView {
@@ -109,6 +187,9 @@ mod tests {
         assert_ne!(at([1.0, 1.0]), WHITE, "a return");
         assert_eq!(at([0.5, 2.0]), WHITE, "nothing there");
         assert_eq!(at([2.0, 0.0]), GOAL);
+        assert_ne!(at([0.0, 1.0]), WHITE, "the commanded path");
+        // The ω strip and its caption below the map.
+        assert!(c.height() as f32 >= TITLE + MARGIN + 200.0 + CAPTION + STRIP);
         assert!(render(&ReplayFigure::default(), 200).is_err());
     }
 }

@@ -230,7 +230,32 @@ fn figure(out: &Replayed, lidar: &SensorSetup, goal: [f64; 2]) -> ReplayFigure {
         tolerance: out.rows[0].goal_tolerance,
         arrived: arrived.map(|r| (r.time_s, [r.x, r.y])),
         duration_s: out.rows.last().map_or(0.0, |r| r.time_s),
+        commanded_path: commanded_path(&out.rows),
+        omega: out.rows.iter().map(|r| (r.time_s, r.omega, r.odom_omega)).collect(),
     }
+}
+
+/// Where the commands alone would have taken the robot: from the first row's pose, each
+/// command (v, ω) held until the next scan, integrated along its arc (open loop: no odometry).
+fn commanded_path(rows: &[CommandRow]) -> Vec<[f64; 2]> {
+    let Some(first) = rows.first() else { return Vec::new() };
+    let (mut x, mut y, mut yaw) = (first.x, first.y, first.yaw);
+    let mut out = vec![[x, y]];
+    for w in rows.windows(2) {
+        let dt = (w[1].time_s - w[0].time_s).clamp(0.0, 1.0);
+        let (v, omega) = (w[0].v, w[0].omega);
+        // Sub-steps of at most 20 ms keep the arc's chord error far below a pixel.
+        let n = ((dt / 0.02).ceil() as usize).max(1);
+        let h = dt / n as f64;
+        for _ in 0..n {
+            let mid = yaw + 0.5 * omega * h;
+            x += v * h * mid.cos();
+            y += v * h * mid.sin();
+            yaw += omega * h;
+        }
+        out.push([x, y]);
+    }
+    out
 }
 
 /// The valid returns of `scan` taken at `row`'s pose by a sensor mounted as `lidar` says, in
