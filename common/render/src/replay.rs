@@ -114,8 +114,7 @@ fn draw_frame(canvas: &mut Canvas, view: &WorldView) {
     canvas.stroke_polyline(&[(l, t), (l + s, t), (l + s, t + s), (l, t + s)], true, 1.0, INK);
     let bar = [0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0]
         .into_iter()
-        .filter(|&m| m <= view.side / 4.0)
-        .next_back()
+        .rfind(|&m| m <= view.side / 4.0)
         .unwrap_or(0.5);
     let px = bar as f32 * view.scale();
     let (x0, y0) = (l + 10.0, t + s - 12.0);
