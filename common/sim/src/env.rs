@@ -3,7 +3,7 @@
 use super::grid::Reach;
 use super::room::Body;
 use super::sensor::MountedSensor;
-use super::{Footprint, Lidar, Pose2, Room, wrap_angle};
+use super::{Footprint, Lidar, Pose2, Room, dist, wrap_angle};
 use crate::EnvConfig;
 use crate::Outcome;
 use crate::obs;
@@ -568,7 +568,7 @@ impl NavEnv {
         let extra = &mut out[beams..];
         let goal = self.observed_goal();
         extra[obs::GOAL_DISTANCE] = dist(self.pose.position(), goal) as f32;
-        extra[obs::GOAL_ANGLE] = bearing(self.pose, goal) as f32;
+        extra[obs::GOAL_ANGLE] = self.pose.bearing_to(goal) as f32;
         extra[obs::LINEAR_VELOCITY] = self.v as f32;
         extra[obs::ANGULAR_VELOCITY] = self.omega as f32;
         if self.cfg.radius_input {
@@ -585,7 +585,7 @@ impl NavEnv {
 
     /// Bearing of the goal in the robot frame (rad, (−π, π], left positive).
     pub fn goal_angle(&self) -> f64 {
-        bearing(self.pose, self.goal)
+        self.pose.bearing_to(self.goal)
     }
 
     /// The goal the agent observes: the subgoal when following a planned path
@@ -708,17 +708,6 @@ impl NavEnv {
     pub fn timed_active(&self) -> usize {
         self.active
     }
-}
-
-fn dist(a: [f64; 2], b: [f64; 2]) -> f64 {
-    (a[0] - b[0]).hypot(a[1] - b[1])
-}
-
-/// Bearing of `p` seen from `pose` (rad, (−π, π], left positive).
-fn bearing(pose: Pose2, p: [f64; 2]) -> f64 {
-    let [x, y] = pose.to_local(p);
-    let a = y.atan2(x);
-    if a <= -std::f64::consts::PI { std::f64::consts::PI } else { a }
 }
 
 /// The returns of `scan` (beams at `angles` from `pose`, `max` for none) as room points.

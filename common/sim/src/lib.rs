@@ -110,12 +110,24 @@ impl Pose2 {
         [self.x, self.y]
     }
 
+    /// Bearing of `p` (room frame) seen from this pose (rad, (−π, π], left positive).
+    pub fn bearing_to(&self, p: [f64; 2]) -> f64 {
+        let [x, y] = self.to_local(p);
+        let a = y.atan2(x);
+        if a <= -std::f64::consts::PI { std::f64::consts::PI } else { a }
+    }
+
     /// `p` (room frame) in this pose's frame: x ahead, y to the left.
     pub fn to_local(&self, p: [f64; 2]) -> [f64; 2] {
         let (s, c) = self.yaw.sin_cos();
         let (dx, dy) = (p[0] - self.x, p[1] - self.y);
         [c * dx + s * dy, -s * dx + c * dy]
     }
+}
+
+/// Euclidean distance between two points (m).
+pub(crate) fn dist(a: [f64; 2], b: [f64; 2]) -> f64 {
+    (a[0] - b[0]).hypot(a[1] - b[1])
 }
 
 /// `a` wrapped to (−π, π].

@@ -15,6 +15,7 @@
 //!   (up to `preferred_clearance_m`), so a lookahead point on the result is never behind a
 //!   corner and the path loses the grid's 45° zig-zags without hugging walls.
 
+use crate::dist;
 use crate::grid::{ClearanceMap, Open, neighbours};
 use crate::spec::Point;
 use std::collections::BinaryHeap;
@@ -155,32 +156,6 @@ fn entry(
     // passable centre; look a little farther for one that starts in a tight spot.
     let reach = (2.0 * r).max(4.0 * raster.res);
     let k = (reach / raster.res).ceil() as isize;
-    let mut best: Option<(f64, usize)> = None;
-    for dj in -k..=k {
-        for di in -k..=k {
-            let (i, j) = (ci as isize + di, cj as isize + dj);
-            if i < 0 || j < 0 || i >= raster.n as isize || j >= raster.n as isize {
-                continue;
-            }
-            let idx = raster.index(i as usize, j as usize);
-            if dist_of[idx] < need {
-                continue;
-            }
-            let d = dist(p, raster.centre(i as usize, j as usize));
-            if d <= reach && best.is_none_or(|(b, _)| d < b) {
-                best = Some((d, idx));
-            }
-        }
-    }
-    // Nearest first among those whose join stays out of the walls (half the radius clear).
-    let Some((_, idx)) = best else {
-        return Err(PlanError::NoRoom { which, point: p, radius: r });
-    };
-    let c = raster.centre(idx % raster.n, idx / raster.n);
-    if segment_clear(map, p, c, 0.5 * r) {
-        return Ok(idx);
-    }
-    // Rare: the nearest passable cell is behind a thin wall; take the nearest reachable one.
     let mut cands: Vec<(f64, usize)> = Vec::new();
     for dj in -k..=k {
         for di in -k..=k {
@@ -195,6 +170,8 @@ fn entry(
             }
         }
     }
+    // Nearest first (stable: ties in scan order) among those whose join stays out of the walls
+    // (half the radius clear): the nearest passable cell may be behind a thin wall.
     cands.sort_by(|a, b| a.0.total_cmp(&b.0));
     cands
         .into_iter()
@@ -310,10 +287,6 @@ fn segment_clear(map: &ClearanceMap, a: Point, b: Point, want: f64) -> bool {
         let q = [a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])];
         raster.cell_of(q).is_some_and(|(i, j)| dist_of[raster.index(i, j)] >= want)
     })
-}
-
-fn dist(a: Point, b: Point) -> f64 {
-    (a[0] - b[0]).hypot(a[1] - b[1])
 }
 
 #[cfg(test)]

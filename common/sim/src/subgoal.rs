@@ -18,7 +18,7 @@
 
 use crate::planner::{PlannedPath, PlannerConfig};
 use crate::spec::Point;
-use crate::{Pose2, wrap_angle};
+use crate::{Pose2, dist};
 use serde::{Deserialize, Serialize};
 
 /// `[env.subgoals]`: long tasks followed along a planned path.
@@ -351,13 +351,8 @@ impl RouteGuide {
 
     /// Bearing (rad) of the last subgoal from `pose`, left positive.
     fn bearing(&self, pose: Pose2) -> f64 {
-        let [x, y] = pose.to_local(self.subgoal);
-        wrap_angle(y.atan2(x))
+        pose.bearing_to(self.subgoal)
     }
-}
-
-fn dist(a: Point, b: Point) -> f64 {
-    (a[0] - b[0]).hypot(a[1] - b[1])
 }
 
 #[cfg(test)]
