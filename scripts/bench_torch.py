@@ -11,7 +11,13 @@ One update, as dvnav's `SacLearner::update`: soft Bellman target with the twin-Q
 critics' MSE, Adam; every 2nd update the policy loss (alpha log pi - min Q + L2 of the policy
 weights) and the temperature loss; Polyak averaging of both targets every update.
 
+With --precision bf16 the update runs under torch.autocast("cpu", torch.bfloat16) (bf16
+matmuls and convolutions, fp32 weights and optimizer), PyTorch's own mixed precision. With
+--peak it also times single 512x512 matrix products at the same threads, fp32 and bf16: the
+CPU's peak as PyTorch reaches it.
+
 Prints one JSON object. Usage: bench_torch.py [--batch 256] [--threads 1] [--updates 20]
+[--precision fp32|bf16] [--peak]
 Install: python3 -m venv .venv && .venv/bin/pip install torch numpy
 """
 import argparse
@@ -85,6 +91,8 @@ def main():
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--updates", type=int, default=20)
     p.add_argument("--warmup", type=int, default=3)
+    p.add_argument("--precision", choices=["fp32", "bf16"], default="fp32")
+    p.add_argument("--peak", action="store_true")
     args = p.parse_args()
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
@@ -135,20 +143,40 @@ def main():
                 for tp, qp in zip(t.parameters(), q.parameters()):
                     tp.mul_(1 - tau).add_(tau * qp)
 
-    for i in range(args.warmup):
-        update(i)
-    start = time.perf_counter()
-    for i in range(args.updates):
-        update(i)
-    secs = time.perf_counter() - start
-    print(json.dumps({
+    amp = torch.autocast("cpu", dtype=torch.bfloat16, enabled=args.precision == "bf16")
+    with amp:
+        for i in range(args.warmup):
+            update(i)
+        start = time.perf_counter()
+        for i in range(args.updates):
+            update(i)
+        secs = time.perf_counter() - start
+    out = {
         "torch_sac_updates_per_s": args.updates / secs,
+        "precision": args.precision,
         "ms_per_update": 1e3 * secs / args.updates,
         "batch": b,
         "threads": args.threads,
         "device": "cpu",
         "torch_version": torch.__version__,
-    }))
+    }
+    if args.peak:
+        out["torch_gemm_peak_gflops_fp32"] = gemm_gflops(torch.float32)
+        out["torch_gemm_peak_gflops_bf16"] = gemm_gflops(torch.bfloat16)
+    print(json.dumps(out))
+
+
+def gemm_gflops(dtype, side=512, seconds=0.5):
+    """GFLOP/s of repeated side^3 products in `dtype` at the threads set."""
+    a = torch.rand(side, side).to(dtype)
+    b = torch.rand(side, side).to(dtype)
+    for _ in range(3):
+        torch.mm(a, b)
+    done, start = 0, time.perf_counter()
+    while done == 0 or time.perf_counter() - start < seconds:
+        torch.mm(a, b)
+        done += 1
+    return done * 2.0 * side**3 / (time.perf_counter() - start) / 1e9
 
 
 if __name__ == "__main__":

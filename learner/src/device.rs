@@ -2,7 +2,7 @@
 //! `cuda` cargo feature). Actors always act on the CPU; weights travel as safetensors either
 //! way.
 
-use candle_core::Device;
+pub use candle_core::Device;
 
 /// Parses `--device`: `cpu`, `cuda` (GPU 0) or `cuda:N`.
 pub fn parse(spec: &str) -> anyhow::Result<Device> {

@@ -139,27 +139,89 @@ fn median(v: &mut [f64]) -> f64 {
 #[derive(Debug, serde::Deserialize)]
 struct TorchFigure {
     torch_sac_updates_per_s: f64,
+    #[serde(default)]
+    torch_gemm_peak_gflops_fp32: Option<f64>,
+    #[serde(default)]
+    torch_gemm_peak_gflops_bf16: Option<f64>,
 }
 
-/// Runs `scripts/bench_torch.py`; `Err` says why there is no PyTorch figure.
-fn torch_figure(batch: usize, threads: usize, updates: usize) -> Result<TorchFigure, String> {
+/// Runs `scripts/bench_torch.py` at `precision` (`fp32`, or `bf16` under autocast), with its
+/// matrix-product peaks when `peak`; `Err` says why there is no PyTorch figure.
+fn torch_figure(
+    batch: usize,
+    threads: usize,
+    updates: usize,
+    precision: &str,
+    peak: bool,
+) -> Result<TorchFigure, String> {
     let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/bench_torch.py");
     let python = std::env::var("DVNAV_TORCH_PYTHON").ok().unwrap_or_else(|| {
         let venv = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv/bin/python3");
         if venv.exists() { venv.display().to_string() } else { "python3".into() }
     });
-    let out = std::process::Command::new(&python)
-        .arg(&script)
+    let mut cmd = std::process::Command::new(&python);
+    cmd.arg(&script)
         .args(["--batch", &batch.to_string(), "--threads", &threads.to_string()])
-        .args(["--updates", &updates.to_string()])
-        .output()
-        .map_err(|e| format!("cannot run {python}: {e}"))?;
+        .args(["--updates", &updates.to_string(), "--precision", precision]);
+    if peak {
+        cmd.arg("--peak");
+    }
+    let out = cmd.output().map_err(|e| format!("cannot run {python}: {e}"))?;
     if !out.status.success() {
         let err = String::from_utf8_lossy(&out.stderr);
         let last = err.lines().last().unwrap_or("").to_string();
         return Err(format!("{python} {}: {last}", script.display()));
     }
     serde_json::from_slice(&out.stdout).map_err(|e| format!("unreadable output: {e}"))
+}
+
+/// PyTorch's side of `dvnav bench learner --torch`: medians over the alternated rounds.
+#[derive(Debug, Default, serde::Serialize)]
+struct TorchSide {
+    torch_sac_updates_per_s: Option<f64>,
+    torch_bf16_sac_updates_per_s: Option<f64>,
+    torch_gemm_peak_gflops_fp32: Option<f64>,
+    torch_gemm_peak_gflops_bf16: Option<f64>,
+}
+
+/// Times dvnav, PyTorch fp32 and PyTorch bf16 autocast in turn, `rounds` times, so that a load
+/// change on a shared machine hits all alike; sets `r` to dvnav's median.
+fn alternate_with_torch(
+    cfg: &dvnav_config::Config,
+    r: &mut dvnav_learner::bench::LearnerBench,
+    rounds: usize,
+    dev: &dvnav_learner::device::Device,
+) -> anyhow::Result<TorchSide> {
+    let (batch, threads, updates) = (r.batch, r.threads, r.updates);
+    let (mut ours, mut fp32, mut bf16) = (vec![r.sac_updates_per_s], Vec::new(), Vec::new());
+    let mut side = TorchSide::default();
+    for round in 0..rounds.max(1) {
+        if round > 0 {
+            let again = dvnav_learner::bench::sac_updates(cfg, batch, threads, 1, updates, dev)?;
+            ours.push(again.sac_updates_per_s);
+        }
+        match torch_figure(batch, threads, updates, "fp32", round == 0) {
+            Ok(v) => {
+                fp32.push(v.torch_sac_updates_per_s);
+                if round == 0 {
+                    side.torch_gemm_peak_gflops_fp32 = v.torch_gemm_peak_gflops_fp32;
+                    side.torch_gemm_peak_gflops_bf16 = v.torch_gemm_peak_gflops_bf16;
+                }
+            }
+            Err(why) => {
+                eprintln!("PyTorch comparison skipped: {why}");
+                break;
+            }
+        }
+        match torch_figure(batch, threads, updates, "bf16", false) {
+            Ok(v) => bf16.push(v.torch_sac_updates_per_s),
+            Err(why) => eprintln!("PyTorch bf16 autocast skipped: {why}"),
+        }
+    }
+    r.set_rate(median(&mut ours));
+    side.torch_sac_updates_per_s = (!fp32.is_empty()).then(|| median(&mut fp32));
+    side.torch_bf16_sac_updates_per_s = (!bf16.is_empty()).then(|| median(&mut bf16));
+    Ok(side)
 }
 
 pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
@@ -220,40 +282,42 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
             super::candle_single_threaded();
             let dev = dvnav_learner::device::parse(&device)?;
             let mut r = dvnav_learner::bench::sac_updates(&cfg, batch, threads, 3, updates, &dev)?;
-            let mut torch_rate = None;
-            if torch {
-                // Alternate the two so that both see the same machine; medians of each.
-                let (mut ours, mut theirs) = (vec![r.sac_updates_per_s], Vec::new());
-                for round in 0..rounds.max(1) {
-                    if round > 0 {
-                        let again = dvnav_learner::bench::sac_updates(
-                            &cfg, batch, threads, 1, updates, &dev,
-                        )?;
-                        ours.push(again.sac_updates_per_s);
-                    }
-                    match torch_figure(batch, threads, updates) {
-                        Ok(v) => theirs.push(v.torch_sac_updates_per_s),
-                        Err(why) => {
-                            eprintln!("PyTorch comparison skipped: {why}");
-                            break;
-                        }
-                    }
-                }
-                r.sac_updates_per_s = median(&mut ours);
-                r.ms_per_update = 1e3 / r.sac_updates_per_s;
-                torch_rate = (!theirs.is_empty()).then(|| median(&mut theirs));
-            }
+            let side = if torch {
+                alternate_with_torch(&cfg, &mut r, rounds, &dev)?
+            } else {
+                TorchSide::default()
+            };
+            let ratio = |t: Option<f64>| t.map(|t| r.sac_updates_per_s / t);
             if json {
                 let mut v = serde_json::to_value(&r)?;
-                v["torch_sac_updates_per_s"] = serde_json::json!(torch_rate);
-                v["speed_ratio_vs_torch"] =
-                    serde_json::json!(torch_rate.map(|t| r.sac_updates_per_s / t));
+                let extra = serde_json::to_value(&side)?;
+                for (k, x) in extra.as_object().into_iter().flatten() {
+                    v[k] = x.clone();
+                }
+                v["speed_ratio_vs_torch"] = serde_json::json!(ratio(side.torch_sac_updates_per_s));
+                v["speed_ratio_vs_torch_bf16"] =
+                    serde_json::json!(ratio(side.torch_bf16_sac_updates_per_s));
                 println!("{v}");
             } else {
-                if let Some(t) = torch_rate {
+                if let Some(t) = side.torch_sac_updates_per_s {
                     println!(
                         "PyTorch, same network, batch and threads: {t:.2} updates/s; dvnav/PyTorch = {:.2}",
                         r.sac_updates_per_s / t
+                    );
+                }
+                if let Some(t) = side.torch_bf16_sac_updates_per_s {
+                    println!(
+                        "PyTorch bf16 autocast: {t:.2} updates/s; dvnav/PyTorch bf16 = {:.2}",
+                        r.sac_updates_per_s / t
+                    );
+                }
+                if let (Some(p), Some(f)) = (r.gemm_peak_gflops_fp32, r.fraction_of_peak_fp32) {
+                    println!(
+                        "{:.2} GFLOP per update, {:.1} GFLOP/s = {:.0} % of the measured fp32 matrix-product peak ({p:.1} GFLOP/s at {} threads)",
+                        r.update_gflop,
+                        r.gflops,
+                        100.0 * f,
+                        r.threads
                     );
                 }
                 println!(

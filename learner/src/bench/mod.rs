@@ -1,5 +1,9 @@
 //! Learner benchmarks behind `dvnav bench learner`: SAC updates per second on random data of
-//! the real observation shape, and policy inference latency.
+//! the real observation shape, their GFLOP/s against the CPU's measured matrix-product peak,
+//! and policy inference latency.
+
+pub mod flops;
+pub mod peak;
 
 use crate::replay::{Batch, ObsCodec, ReplayBuffer};
 use crate::sac::{SacLearner, SacNetworks};
@@ -27,10 +31,31 @@ pub struct LearnerBench {
     pub network: String,
     /// Updates timed.
     pub updates: usize,
+    /// FLOPs of one update (GFLOP), counted from the network's shapes ([`flops`]).
+    pub update_gflop: f64,
+    /// The update's arithmetic rate (GFLOP/s): `update_gflop` × updates per second.
+    pub gflops: f64,
+    /// The CPU's measured fp32 matrix-product peak at the same threads (GFLOP/s; [`peak`]);
+    /// `None` on a GPU.
+    pub gemm_peak_gflops_fp32: Option<f64>,
+    /// `gflops` / `gemm_peak_gflops_fp32`.
+    pub fraction_of_peak_fp32: Option<f64>,
+    /// Whether the CPU has bf16 dot products in hardware (AVX512-BF16).
+    pub cpu_bf16: bool,
     /// Policy inference latency at batch 1 (ms, mean).
     pub inference_ms_batch1: f64,
     /// Policy inference latency at batch 64 (ms, mean).
     pub inference_ms_batch64: f64,
+}
+
+impl LearnerBench {
+    /// Sets the update rate (a median over rounds, say) and the figures that follow from it.
+    pub fn set_rate(&mut self, sac_updates_per_s: f64) {
+        self.sac_updates_per_s = sac_updates_per_s;
+        self.ms_per_update = 1e3 / sac_updates_per_s;
+        self.gflops = self.update_gflop * sac_updates_per_s;
+        self.fraction_of_peak_fp32 = self.gemm_peak_gflops_fp32.map(|p| self.gflops / p);
+    }
 }
 
 fn random_replay(cfg: &Config, n: usize, rng: &mut impl Rng) -> ReplayBuffer {
@@ -93,8 +118,16 @@ pub fn sac_updates(
         Ok(t.elapsed().as_secs_f64() * 1e3 / reps as f64)
     };
     let n = &cfg.network;
+    let rate = updates as f64 / secs;
+    let update_gflop = flops::update_flops(cfg, batch) / 1e9;
+    let peak = match dev {
+        Device::Cpu => {
+            Some(peak::gemm_fp32_gflops(learner.threads(), std::time::Duration::from_millis(500))?)
+        }
+        _ => None,
+    };
     Ok(LearnerBench {
-        sac_updates_per_s: updates as f64 / secs,
+        sac_updates_per_s: rate,
         ms_per_update: secs * 1e3 / updates as f64,
         batch,
         threads: learner.threads(),
@@ -111,6 +144,11 @@ pub fn sac_updates(
             n.hidden
         ),
         updates,
+        update_gflop,
+        gflops: update_gflop * rate,
+        gemm_peak_gflops_fp32: peak,
+        fraction_of_peak_fp32: peak.map(|p| update_gflop * rate / p),
+        cpu_bf16: peak::cpu_has_bf16_dot(),
         inference_ms_batch1: latency(1)?,
         inference_ms_batch64: latency(64)?,
     })

@@ -1,0 +1,72 @@
+//! The CPU's measured matrix-product peak, the yardstick of `dvnav bench learner`'s GFLOP/s.
+//!
+//! Measured, not looked up: `threads` threads each multiply their own 512×512 fp32 matrices with
+//! candle's CPU matmul (the gemm crate, the kernels the learner's layers run on) on one thread
+//! each, which is how the learner spreads an update (row shards, candle single-threaded).
+
+use candle_core::{Device, Tensor};
+use std::time::{Duration, Instant};
+
+/// Side of the square matrices: big enough to reach the kernels' steady state, small enough
+/// to stay in L2 as the learner's operands do.
+pub const GEMM_SIDE: usize = 512;
+
+/// Aggregate fp32 GFLOP/s of `threads` concurrent single-threaded 512³ products, each thread
+/// running for about `per_thread` after two untimed products.
+pub fn gemm_fp32_gflops(threads: usize, per_thread: Duration) -> candle_core::Result<f64> {
+    let threads = threads.max(1);
+    let start = Instant::now();
+    let flops = std::thread::scope(|s| {
+        let workers: Vec<_> =
+            (0..threads).map(|i| s.spawn(move || one_thread(i as u64, per_thread))).collect();
+        workers
+            .into_iter()
+            .map(|w| w.join().expect("gemm worker panicked"))
+            .sum::<candle_core::Result<f64>>()
+    })?;
+    Ok(flops / start.elapsed().as_secs_f64() / 1e9)
+}
+
+/// FLOPs done by one thread.
+fn one_thread(seed: u64, run_for: Duration) -> candle_core::Result<f64> {
+    let dev = Device::Cpu;
+    let n = GEMM_SIDE;
+    let a = Tensor::rand(-1f32, 1.0, (n, n), &dev)?;
+    let b = Tensor::rand(-1f32, 1.0, (n, n), &dev)?.affine(1.0, seed as f64 * 1e-3)?;
+    for _ in 0..2 {
+        a.matmul(&b)?;
+    }
+    let t = Instant::now();
+    let mut done = 0usize;
+    while done == 0 || t.elapsed() < run_for {
+        a.matmul(&b)?;
+        done += 1;
+    }
+    Ok(done as f64 * 2.0 * (n * n * n) as f64)
+}
+
+/// Whether the CPU multiplies bf16 pairs into fp32 sums in hardware (AVX512-BF16's
+/// `vdpbf16ps`); elsewhere a bf16 product runs at fp32 speed or slower.
+pub fn cpu_has_bf16_dot() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx512bf16")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_peak_is_a_positive_rate() {
+        // Only that the measurement runs and divides the right way round: a 512³ product is
+        // 0.27 GFLOP, and no CPU does one in under a microsecond or over ten seconds.
+        let g = gemm_fp32_gflops(1, Duration::from_millis(20)).unwrap();
+        assert!(g > 0.027 && g < 268_000.0, "{g}");
+    }
+}
