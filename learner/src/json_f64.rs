@@ -2,6 +2,11 @@
 
 use serde::{Deserialize, Deserializer};
 
+/// The default of a float field that older files lack: not a number, i.e. not measured.
+pub fn nan() -> f64 {
+    f64::NAN
+}
+
 /// An `f64` field that may hold `null` (a non-finite value when it was written): read as NaN,
 /// so the summary of a run whose losses diverged still reads.
 pub fn f64_or_nan<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {

@@ -16,7 +16,7 @@ use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
 /// The fixed columns of `metrics.csv`, in [`MetricsRow`]'s field order.
-pub const COLUMNS: [&str; 18] = [
+pub const COLUMNS: [&str; 19] = [
     "time_s",
     "env_steps",
     "env_steps_per_s",
@@ -33,6 +33,7 @@ pub const COLUMNS: [&str; 18] = [
     "critic_loss",
     "actor_loss",
     "alpha",
+    "policy_entropy",
     "transitions_received",
     "transitions_rejected",
 ];
@@ -91,6 +92,9 @@ pub struct MetricsRow {
     /// Entropy temperature α.
     #[serde(serialize_with = "ser_number", default = "nan")]
     pub alpha: f64,
+    /// The policy's entropy estimate, −mean log π, of the last policy update.
+    #[serde(serialize_with = "ser_number", default = "nan")]
+    pub policy_entropy: f64,
     /// Transitions accepted.
     #[serde(default)]
     pub transitions_received: u64,
@@ -124,6 +128,7 @@ impl MetricsRow {
             critic_loss: s.critic_loss,
             actor_loss: s.actor_loss,
             alpha: s.alpha,
+            policy_entropy: s.policy_entropy,
             transitions_received: s.transitions_received,
             transitions_rejected: s.transitions_rejected,
             success_rate_stage: (0..sample.rooms.len() as u32)

@@ -212,6 +212,12 @@ pub fn render_prometheus(sample: &Sample) -> String {
     );
     metric("dvnav_actor_loss", "gauge", "Latest actor (policy) loss.", &one(s.actor_loss));
     metric("dvnav_alpha", "gauge", "Entropy temperature alpha.", &one(s.alpha));
+    metric(
+        "dvnav_policy_entropy",
+        "gauge",
+        "The policy's entropy estimate, -mean log pi, at its last update.",
+        &one(s.policy_entropy),
+    );
     let actor_rows = |f: &dyn Fn(&ActorCounters) -> f64| -> Vec<(String, f64)> {
         s.actors.iter().map(|a| (format!("{{actor=\"{}\"}}", label(&a.name)), f(a))).collect()
     };

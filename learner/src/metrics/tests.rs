@@ -114,6 +114,7 @@ async fn prometheus_text_has_every_headline_metric() {
         "dvnav_critic_loss",
         "dvnav_actor_loss",
         "dvnav_alpha",
+        "dvnav_policy_entropy",
         "dvnav_episodes_total",
     ] {
         assert!(value(&text, name).is_finite(), "{name}");

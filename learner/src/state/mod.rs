@@ -679,6 +679,7 @@ impl LearnerState {
             critic_loss: c.metrics.critic_loss,
             actor_loss: c.metrics.actor_loss,
             alpha: c.metrics.alpha,
+            policy_entropy: c.metrics.entropy,
             done: c.done,
             step_budget: self.cfg.run.steps,
             actors: c

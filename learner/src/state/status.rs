@@ -81,6 +81,10 @@ pub struct StatusSnapshot {
     /// Temperature α.
     #[serde(deserialize_with = "f64_or_nan")]
     pub alpha: f64,
+    /// −mean log π(ã|s) of the last policy update: the policy's entropy, to read α against
+    /// (α → 0 with the entropy at its target is the constraint no longer binding, not a bug).
+    #[serde(default = "crate::json_f64::nan", deserialize_with = "f64_or_nan")]
+    pub policy_entropy: f64,
     /// The step budget is reached (or shutdown began).
     pub done: bool,
     /// The step budget.
