@@ -35,6 +35,7 @@ pub mod bench;
 pub mod checkpoint;
 pub mod csv_format;
 pub mod curriculum;
+pub mod denormals;
 pub mod device;
 pub mod evaluator;
 pub mod json_f64;

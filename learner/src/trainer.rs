@@ -69,6 +69,8 @@ pub fn train(
     out_dir: PathBuf,
 ) -> anyhow::Result<(SacLearner, Pcg64)> {
     let cfg = state.config().clone();
+    // This thread runs the updates (with one learner thread, all of them).
+    crate::denormals::flush_denormals_to_zero();
     let mut batch = Batch::default();
     let limiter = state.limiter();
     let evaluator = {

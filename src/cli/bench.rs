@@ -80,6 +80,14 @@ enum BenchWhat {
         /// median, so a load change on a shared machine hits both alike.
         #[arg(long, default_value_t = 3)]
         rounds: usize,
+        /// Time the update on the newest checkpoint of this run directory (trained weights
+        /// and optimizer moments) instead of fresh networks.
+        #[arg(long, value_name = "RUN_DIR")]
+        from_checkpoint: Option<PathBuf>,
+        /// Keep subnormal floats on the timing thread (the trainer flushes them to zero); to
+        /// measure what flushing buys.
+        #[arg(long)]
+        keep_denormals: bool,
         /// Print one JSON object.
         #[arg(long)]
         json: bool,
@@ -123,6 +131,15 @@ enum BenchWhat {
         /// How long the fleet drives (s, after 1 s of settling).
         #[arg(long, default_value_t = 10.0)]
         seconds: f64,
+        /// Then a routed fleet as big, at the same rate, for as long: the server plans each
+        /// robot's legs on this map (SetMap, SetGoal) and each Act carries the robot's pose.
+        /// '' skips it.
+        #[arg(long, default_value = "maps/willow.yaml")]
+        route_map: String,
+        /// Every this many calls each routed robot reports a pose far from its path (the next
+        /// leg's start), so that the server replans inside that Act.
+        #[arg(long, default_value_t = 50)]
+        stray_every: usize,
         /// Print one JSON object.
         #[arg(long)]
         json: bool,
@@ -189,15 +206,17 @@ struct TorchSide {
 fn alternate_with_torch(
     cfg: &dvnav_config::Config,
     r: &mut dvnav_learner::bench::LearnerBench,
+    run: &dvnav_learner::bench::UpdateBench,
     rounds: usize,
     dev: &dvnav_learner::device::Device,
 ) -> anyhow::Result<TorchSide> {
     let (batch, threads, updates) = (r.batch, r.threads, r.updates);
+    let run = dvnav_learner::bench::UpdateBench { warmup: 1, ..run.clone() };
     let (mut ours, mut fp32, mut bf16) = (vec![r.sac_updates_per_s], Vec::new(), Vec::new());
     let mut side = TorchSide::default();
     for round in 0..rounds.max(1) {
         if round > 0 {
-            let again = dvnav_learner::bench::sac_updates(cfg, batch, threads, 1, updates, dev)?;
+            let again = dvnav_learner::bench::sac_updates(cfg, &run, dev)?;
             ours.push(again.sac_updates_per_s);
         }
         match torch_figure(batch, threads, updates, "fp32", round == 0) {
@@ -273,7 +292,18 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
                 );
             }
         }
-        BenchWhat::Learner { config, batch, updates, threads, device, torch, rounds, json } => {
+        BenchWhat::Learner {
+            config,
+            batch,
+            updates,
+            threads,
+            device,
+            torch,
+            rounds,
+            from_checkpoint,
+            keep_denormals,
+            json,
+        } => {
             let cfg = super::load_config(config.as_ref())?;
             let threads = match threads.unwrap_or(cfg.learner.threads) {
                 0 => std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
@@ -281,9 +311,17 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
             };
             super::candle_single_threaded();
             let dev = dvnav_learner::device::parse(&device)?;
-            let mut r = dvnav_learner::bench::sac_updates(&cfg, batch, threads, 3, updates, &dev)?;
+            let run = dvnav_learner::bench::UpdateBench {
+                batch,
+                threads,
+                warmup: 3,
+                updates,
+                checkpoint: from_checkpoint,
+                flush_denormals: !keep_denormals,
+            };
+            let mut r = dvnav_learner::bench::sac_updates(&cfg, &run, &dev)?;
             let side = if torch {
-                alternate_with_torch(&cfg, &mut r, rounds, &dev)?
+                alternate_with_torch(&cfg, &mut r, &run, rounds, &dev)?
             } else {
                 TorchSide::default()
             };
@@ -350,12 +388,34 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
                 );
             }
         }
-        BenchWhat::Serve { checkpoint, footprint, calls, robots, rate_hz, seconds, json } => {
+        BenchWhat::Serve {
+            checkpoint,
+            footprint,
+            calls,
+            robots,
+            rate_hz,
+            seconds,
+            route_map,
+            stray_every,
+            json,
+        } => {
             let repo = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
             let checkpoint = checkpoint.unwrap_or_else(|| repo.join("models/meta-r0.2"));
             let footprint = footprint.unwrap_or_else(|| repo.join("footprints/paper-medium.toml"));
             let fleet = super::serve::FleetLoad { robots, rate_hz, seconds };
-            let r = super::serve::bench(&checkpoint, &footprint, calls, fleet)?;
+            // A relative map path names a file of the repository, as the defaults above do.
+            let route = (!route_map.is_empty()).then(|| super::serve::RouteLoad {
+                map: match std::path::Path::new(&route_map) {
+                    p if p.is_absolute() || p.exists() => p.to_path_buf(),
+                    p => repo.join(p),
+                },
+                robots,
+                rate_hz,
+                seconds,
+                stray_every,
+                radius: 0.2,
+            });
+            let r = super::serve::bench(&checkpoint, &footprint, calls, fleet, route)?;
             if json {
                 println!("{}", serde_json::to_string(&r)?);
             } else {

@@ -75,22 +75,39 @@ fn random_replay(cfg: &Config, n: usize, rng: &mut impl Rng) -> ReplayBuffer {
     replay
 }
 
-/// Times `updates` SAC updates at `batch` on `threads` learner threads (0: one per core; see
-/// [`SacLearner::with_threads`]) after `warmup` untimed ones.
-pub fn sac_updates(
-    cfg: &Config,
-    batch: usize,
-    threads: usize,
-    warmup: usize,
-    updates: usize,
-    dev: &Device,
-) -> anyhow::Result<LearnerBench> {
+/// What [`sac_updates`] times.
+#[derive(Clone, Debug)]
+pub struct UpdateBench {
+    /// Minibatch size.
+    pub batch: usize,
+    /// Learner threads (0: one per core; see [`SacLearner::with_threads`]).
+    pub threads: usize,
+    /// Untimed updates first.
+    pub warmup: usize,
+    /// Updates timed.
+    pub updates: usize,
+    /// Start from the newest checkpoint of this run directory (trained weights and Adam
+    /// moments, whose small values a fresh network lacks) instead of fresh networks.
+    pub checkpoint: Option<std::path::PathBuf>,
+    /// Flush subnormals to zero on the timing thread, as the trainer does ([`crate::denormals`]).
+    pub flush_denormals: bool,
+}
+
+/// Times `run.updates` SAC updates after `run.warmup` untimed ones.
+pub fn sac_updates(cfg: &Config, run: &UpdateBench, dev: &Device) -> anyhow::Result<LearnerBench> {
+    let (batch, threads, warmup, updates) = (run.batch, run.threads, run.warmup, run.updates);
     let dev = dev.clone();
+    if run.flush_denormals {
+        crate::denormals::flush_denormals_to_zero();
+    }
     let mut rng = rand_pcg::Pcg64::seed_from_u64(0);
     let replay = random_replay(cfg, 4 * batch, &mut rng);
     let nets = SacNetworks::new(cfg, 0, &dev)?;
     let mut learner =
         SacLearner::new(nets, cfg.sac.clone(), dev.clone(), 0)?.with_threads(threads)?;
+    if let Some(dir) = &run.checkpoint {
+        crate::checkpoint::Checkpoint::latest(dir)?.restore_learner(&mut learner)?;
+    }
     let mut b = Batch::default();
     for _ in 0..warmup {
         replay.sample_into(batch, &mut rng, &mut b);

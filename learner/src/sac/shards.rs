@@ -104,6 +104,9 @@ impl Workers {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
                 .thread_name(|i| format!("dvnav-learner-{i}"))
+                .start_handler(|_| {
+                    crate::denormals::flush_denormals_to_zero();
+                })
                 .build()
                 .map_err(|e| candle_core::Error::Msg(format!("learner worker threads: {e}")))?;
             Some(pool)

@@ -3,6 +3,7 @@
 //! and in-process; and a fleet of robots, each on its own connection at its own control rate,
 //! on one server.
 
+use super::latency::Latency;
 use super::{load_controller, robot_input, serve, single_candle_thread};
 use dvnav_nav::dvst::DvstController;
 use dvnav_proto::controller::v1 as pb;
@@ -60,6 +61,9 @@ pub struct ServeBench {
     mu: f64,
     model: String,
     footprint: String,
+    /// Robots the server plans for and replans for (`--route-map`); absent with `--route-map ''`.
+    #[serde(flatten)]
+    route: Option<super::route_bench::RouteFigures>,
 }
 
 /// A scan that changes from call to call, like a robot moving through a room.
@@ -119,6 +123,7 @@ pub fn bench(
     footprint: &Path,
     calls: usize,
     fleet: FleetLoad,
+    route: Option<super::route_bench::RouteLoad>,
 ) -> anyhow::Result<ServeBench> {
     anyhow::ensure!(calls >= 100, "--calls must be at least 100 for a p99");
     anyhow::ensure!(
@@ -137,7 +142,8 @@ pub fn bench(
         Path::new(env!("CARGO_MANIFEST_DIR")).join("footprints/circle-with-cargo.toml"),
     )?;
 
-    let (remote, remote_laser, fleet_ms) = super::super::runtime()?.block_on(async {
+    let mu = info.footprint.mu;
+    let (remote, remote_laser, fleet_ms, routed) = super::super::runtime()?.block_on(async {
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
         let addr = listener.local_addr()?;
         let url = format!("http://{addr}");
@@ -167,9 +173,17 @@ pub fn bench(
         let meta = one_at_a_time(false).await?;
         let laser = one_at_a_time(true).await?;
         let fleet_ms = drive_fleet(&url, fleet, beams, &cargo).await?;
+        let routed = match &route {
+            Some(load) => {
+                let load = super::route_bench::RouteLoad { radius: 0.2 * mu, ..load.clone() };
+                let act = move |k: usize, id: &str| request(beams, k, true, id);
+                Some(super::route_bench::drive(&url, &load, act).await?)
+            }
+            None => None,
+        };
         let _ = stop.send(());
         server.await??;
-        anyhow::Ok((meta, laser, fleet_ms))
+        anyhow::Ok((meta, laser, fleet_ms, routed))
     })?;
     let fleet_calls = fleet_ms.len();
     let f = Latency::of(fleet_ms);
@@ -207,6 +221,7 @@ pub fn bench(
         mu: fp.mu,
         model: format!("{} ({})", info.model.name, info.model.version),
         footprint: footprint.display().to_string(),
+        route: routed,
     })
 }
 
@@ -299,41 +314,28 @@ impl ServeBench {
             self.fleet_max_ms,
             self.fleet_target_p99_ms,
             met(self.fleet_meets_target),
-        )
+        ) + &self.route.as_ref().map(route_summary).unwrap_or_default()
     }
 }
 
-/// Percentiles of a sample of latencies (ms): the nearest-rank definition.
-struct Latency {
-    p50: f64,
-    p99: f64,
-    mean: f64,
-    max: f64,
-}
-
-impl Latency {
-    fn of(mut ms: Vec<f64>) -> Latency {
-        ms.sort_by(f64::total_cmp);
-        let rank = |q: f64| ms[((q * ms.len() as f64).ceil() as usize).clamp(1, ms.len()) - 1];
-        Latency {
-            p50: rank(0.50),
-            p99: rank(0.99),
-            mean: ms.iter().sum::<f64>() / ms.len() as f64,
-            max: ms[ms.len() - 1],
-        }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn nearest_rank_percentiles() {
-        let l = Latency::of((1..=200).rev().map(f64::from).collect());
-        assert_eq!((l.p50, l.p99, l.max), (100.0, 198.0, 200.0));
-        assert!((l.mean - 100.5).abs() < 1e-12);
-        let one = Latency::of(vec![3.0]);
-        assert_eq!((one.p50, one.p99, one.max), (3.0, 3.0, 3.0));
-    }
+fn route_summary(r: &super::route_bench::RouteFigures) -> String {
+    format!(
+        "\nrouted fleet on {}: {} robots at {} Hz, each off its path every {} calls: {} calls, {} \
+         replans: p50 {:.3} ms, p99 {:.3} ms, max {:.3} ms (target p99 ≤ {} ms: {}); the \
+         replanning calls p50 {:.3} ms, max {:.3} ms; the others p99 {:.3} ms",
+        r.route_map,
+        r.route_robots,
+        r.route_rate_hz,
+        r.route_stray_every,
+        r.route_calls,
+        r.route_replans,
+        r.route_p50_ms,
+        r.route_p99_ms,
+        r.route_max_ms,
+        r.route_target_p99_ms,
+        if r.route_meets_target { "met" } else { "missed" },
+        r.route_replan_p50_ms,
+        r.route_replan_max_ms,
+        r.route_other_p99_ms,
+    )
 }

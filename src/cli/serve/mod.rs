@@ -577,7 +577,10 @@ impl Controller for ControllerService {
 }
 
 mod bench;
+mod latency;
+mod route_bench;
 pub use bench::{FleetLoad, bench};
+pub use route_bench::RouteLoad;
 
 #[cfg(test)]
 mod tests {
