@@ -132,7 +132,10 @@ pub fn bench(
     );
     single_candle_thread();
     let ctl = load_controller(checkpoint, footprint, None)?
-        .with_robot_limits(fleet.robots + 1, Duration::from_secs(600))?;
+        .with_robot_limits(
+            fleet.robots + route.as_ref().map_or(0, |r| r.robots) + 1,
+            Duration::from_secs(600),
+        )?;
     let ctl = Arc::new(ctl);
     let info = ctl.info("");
     let beams = info.beams;
