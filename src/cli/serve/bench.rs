@@ -131,11 +131,10 @@ pub fn bench(
         "the fleet needs at least 1 robot, a positive rate and 1 s"
     );
     single_candle_thread();
-    let ctl = load_controller(checkpoint, footprint, None)?
-        .with_robot_limits(
-            fleet.robots + route.as_ref().map_or(0, |r| r.robots) + 1,
-            Duration::from_secs(600),
-        )?;
+    let ctl = load_controller(checkpoint, footprint, None)?.with_robot_limits(
+        fleet.robots + route.as_ref().map_or(0, |r| r.robots) + 1,
+        Duration::from_secs(600),
+    )?;
     let ctl = Arc::new(ctl);
     let info = ctl.info("");
     let beams = info.beams;
