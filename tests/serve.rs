@@ -641,3 +641,28 @@ async fn the_server_plans_on_a_map_for_a_robots_goal() {
     let (status, _) = server.stop().await;
     assert!(status.success());
 }
+
+/// `dvnav bench serve`'s routed fleet really routes: robots on the Willow Garage map follow
+/// planned legs, the server replans for the ones that stray, and the figures say so.
+#[test]
+fn the_serve_bench_routes_and_replans_its_robots() {
+    let out = Command::new(env!("CARGO_BIN_EXE_dvnav"))
+        .args(["bench", "serve", "--calls", "100", "--robots", "2", "--seconds", "2"])
+        .args(["--stray-every", "5", "--json"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(r["route_map"], "maps/willow.yaml", "{r}");
+    let calls = r["route_calls"].as_u64().unwrap();
+    // 2 robots at 10 Hz for 2 timed seconds, a stray every 5th call.
+    assert!(calls >= 20, "{r}");
+    let replans = r["route_replans"].as_u64().unwrap();
+    assert!(replans >= 2 && replans <= calls, "{r}");
+    // One replan per straying call, each counted once.
+    assert_eq!(r["route_replan_calls"].as_u64().unwrap(), replans, "{r}");
+    assert!(
+        r["route_replan_max_ms"].as_f64().unwrap() >= r["route_replan_p50_ms"].as_f64().unwrap()
+    );
+}

@@ -35,6 +35,7 @@ pub struct RouteFigures {
     pub route_rate_hz: f64,
     pub route_stray_every: usize,
     pub route_calls: usize,
+    /// Replans the server reported during the timed calls.
     pub route_replans: u64,
     pub route_p50_ms: f64,
     pub route_p99_ms: f64,
@@ -125,11 +126,11 @@ pub async fn drive(
                 let reply = client.act(r).await?.into_inner();
                 let ms = t.elapsed().as_secs_f64() * 1e3;
                 let replanned = reply.replans > replans_before;
-                replans += u64::from(reply.replans.saturating_sub(replans_before));
-                replans_before = reply.replans;
                 if t >= timed_from {
+                    replans += u64::from(reply.replans.saturating_sub(replans_before));
                     calls.push((ms, replanned));
                 }
+                replans_before = reply.replans;
                 // Drive towards the subgoal (0.05 m a call); a new leg once there or blocked.
                 let to = [reply.subgoal_x - at[0], reply.subgoal_y - at[1]];
                 let d = to[0].hypot(to[1]);
