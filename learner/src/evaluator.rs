@@ -183,11 +183,6 @@ fn open_logger(cfg: &Config, out: &Path) -> anyhow::Result<EvalLogger> {
     EvalLogger::create(&dir, "eval", "eval", meta, cfg.logging.episodes_per_file)
 }
 
-/// A missing number reads as NaN.
-fn nan() -> f64 {
-    f64::NAN
-}
-
 /// Seed of the evaluation episodes of a run with root seed `seed` (apart from the seeds
 /// actors derive from it).
 pub fn eval_seed(seed: u64) -> u64 {
@@ -290,33 +285,33 @@ pub struct EvalRow {
     #[serde(serialize_with = "ser_4_decimals_or_nan")]
     pub score: f64,
     /// Share of the random episodes that succeeded.
-    #[serde(serialize_with = "ser_4_decimals_or_nan", default = "nan")]
+    #[serde(serialize_with = "ser_4_decimals_or_nan", default = "crate::json_f64::nan")]
     pub success_rate: f64,
     /// Share that collided.
-    #[serde(serialize_with = "ser_4_decimals_or_nan", default = "nan")]
+    #[serde(serialize_with = "ser_4_decimals_or_nan", default = "crate::json_f64::nan")]
     pub collision_rate: f64,
     /// Share that timed out.
-    #[serde(serialize_with = "ser_4_decimals_or_nan", default = "nan")]
+    #[serde(serialize_with = "ser_4_decimals_or_nan", default = "crate::json_f64::nan")]
     pub timeout_rate: f64,
     /// Mean time of the successful episodes (s).
-    #[serde(serialize_with = "ser_4_decimals_or_nan", default = "nan")]
+    #[serde(serialize_with = "ser_4_decimals_or_nan", default = "crate::json_f64::nan")]
     pub mean_time_s: f64,
     /// Random episodes run.
     #[serde(default)]
     pub episodes: u64,
     /// Mean score of the random episodes.
-    #[serde(serialize_with = "ser_4_decimals_or_nan", default = "nan")]
+    #[serde(serialize_with = "ser_4_decimals_or_nan", default = "crate::json_f64::nan")]
     pub mean_score: f64,
     /// Route goals reached.
     pub route_goals_reached: Option<u64>,
     /// Time on the route (s).
-    #[serde(serialize_with = "ser_4_decimals_or_nan", default = "nan")]
+    #[serde(serialize_with = "ser_4_decimals_or_nan", default = "crate::json_f64::nan")]
     pub route_time_s: f64,
     /// Weight version evaluated (0: never published).
     #[serde(default)]
     pub policy_version: u64,
     /// Wall time of the whole evaluation (s).
-    #[serde(serialize_with = "ser_2_decimals", default = "nan")]
+    #[serde(serialize_with = "ser_2_decimals", default = "crate::json_f64::nan")]
     pub eval_wall_s: f64,
 }
 

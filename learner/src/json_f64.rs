@@ -2,7 +2,7 @@
 
 use serde::{Deserialize, Deserializer};
 
-/// The default of a float field that older files lack: not a number, i.e. not measured.
+/// The default of a float field a file lacks (an older file, a missing number): NaN, not measured.
 pub fn nan() -> f64 {
     f64::NAN
 }

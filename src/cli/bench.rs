@@ -211,7 +211,8 @@ fn alternate_with_torch(
     dev: &dvnav_learner::device::Device,
 ) -> anyhow::Result<TorchSide> {
     let (batch, threads, updates) = (r.batch, r.threads, r.updates);
-    let run = dvnav_learner::bench::UpdateBench { warmup: 1, ..run.clone() };
+    // The later rounds time the update alone: the peak is the first round's.
+    let run = dvnav_learner::bench::UpdateBench { warmup: 1, measure_peak: false, ..run.clone() };
     let (mut ours, mut fp32, mut bf16) = (vec![r.sac_updates_per_s], Vec::new(), Vec::new());
     let mut side = TorchSide::default();
     for round in 0..rounds.max(1) {
@@ -318,6 +319,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
                 updates,
                 checkpoint: from_checkpoint,
                 flush_denormals: !keep_denormals,
+                measure_peak: true,
             };
             let mut r = dvnav_learner::bench::sac_updates(&cfg, &run, &dev)?;
             let side = if torch {
@@ -413,7 +415,6 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
                 rate_hz,
                 seconds,
                 stray_every,
-                radius: 0.2,
             });
             let r = super::serve::bench(&checkpoint, &footprint, calls, fleet, route)?;
             if json {

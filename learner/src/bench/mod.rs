@@ -91,6 +91,8 @@ pub struct UpdateBench {
     pub checkpoint: Option<std::path::PathBuf>,
     /// Flush subnormals to zero on the timing thread, as the trainer does ([`crate::denormals`]).
     pub flush_denormals: bool,
+    /// Also measure the CPU's matrix-product peak (about 0.5 s; CPU only).
+    pub measure_peak: bool,
 }
 
 /// Times `run.updates` SAC updates after `run.warmup` untimed ones.
@@ -138,7 +140,7 @@ pub fn sac_updates(cfg: &Config, run: &UpdateBench, dev: &Device) -> anyhow::Res
     let rate = updates as f64 / secs;
     let update_gflop = flops::update_flops(cfg, batch) / 1e9;
     let peak = match dev {
-        Device::Cpu => {
+        Device::Cpu if run.measure_peak => {
             Some(peak::gemm_fp32_gflops(learner.threads(), std::time::Duration::from_millis(500))?)
         }
         _ => None,

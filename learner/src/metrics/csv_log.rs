@@ -46,18 +46,18 @@ pub const STAGE_COLUMN: &str = "success_rate_stage";
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct MetricsRow {
     /// Seconds since the learner started sampling.
-    #[serde(serialize_with = "ser_3_decimals", default = "nan")]
+    #[serde(serialize_with = "ser_3_decimals", default = "crate::json_f64::nan")]
     pub time_s: f64,
     /// Environment steps (transitions) accepted.
     pub env_steps: u64,
     /// Environment steps per second over the sampler's rate window.
-    #[serde(serialize_with = "ser_2_decimals", default = "nan")]
+    #[serde(serialize_with = "ser_2_decimals", default = "crate::json_f64::nan")]
     pub env_steps_per_s: f64,
     /// SAC updates done.
     #[serde(default)]
     pub updates: u64,
     /// Updates per second over the rate window.
-    #[serde(serialize_with = "ser_3_decimals", default = "nan")]
+    #[serde(serialize_with = "ser_3_decimals", default = "crate::json_f64::nan")]
     pub updates_per_s: f64,
     /// Episodes reported.
     #[serde(default)]
@@ -72,7 +72,7 @@ pub struct MetricsRow {
     #[serde(default)]
     pub weight_version: u64,
     /// Mean policy lag of the transitions since the previous sample (NaN: none policy-driven).
-    #[serde(serialize_with = "ser_number", default = "nan")]
+    #[serde(serialize_with = "ser_number", default = "crate::json_f64::nan")]
     pub policy_lag_mean: f64,
     /// Largest policy lag of those transitions.
     #[serde(default)]
@@ -81,19 +81,19 @@ pub struct MetricsRow {
     #[serde(default)]
     pub stage: u32,
     /// Success rate over the curriculum window of the current stage.
-    #[serde(serialize_with = "ser_number", default = "nan")]
+    #[serde(serialize_with = "ser_number", default = "crate::json_f64::nan")]
     pub curriculum_success_rate: f64,
     /// Latest critic loss.
-    #[serde(serialize_with = "ser_number", default = "nan")]
+    #[serde(serialize_with = "ser_number", default = "crate::json_f64::nan")]
     pub critic_loss: f64,
     /// Latest actor loss.
-    #[serde(serialize_with = "ser_number", default = "nan")]
+    #[serde(serialize_with = "ser_number", default = "crate::json_f64::nan")]
     pub actor_loss: f64,
     /// Entropy temperature α.
-    #[serde(serialize_with = "ser_number", default = "nan")]
+    #[serde(serialize_with = "ser_number", default = "crate::json_f64::nan")]
     pub alpha: f64,
     /// The policy's entropy estimate, −mean log π, of the last policy update.
-    #[serde(serialize_with = "ser_number", default = "nan")]
+    #[serde(serialize_with = "ser_number", default = "crate::json_f64::nan")]
     pub policy_entropy: f64,
     /// Transitions accepted.
     #[serde(default)]
@@ -204,11 +204,6 @@ impl CsvLog {
 
 /// The columns a `metrics.csv` must have to be read.
 pub const REQUIRED: [&str; 1] = ["env_steps"];
-
-/// A missing number reads as NaN.
-fn nan() -> f64 {
-    f64::NAN
-}
 
 /// A row as read: the named columns, and the rest (the per-stage columns among them).
 #[derive(Deserialize)]

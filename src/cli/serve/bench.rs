@@ -177,9 +177,9 @@ pub fn bench(
         let fleet_ms = drive_fleet(&url, fleet, beams, &cargo).await?;
         let routed = match &route {
             Some(load) => {
-                let load = super::route_bench::RouteLoad { radius: 0.2 * mu, ..load.clone() };
                 let act = move |k: usize, id: &str| request(beams, k, true, id);
-                Some(super::route_bench::drive(&url, &load, act).await?)
+                // The server's robot: the meta robot's 0.2 m scaled by DVST's μ.
+                Some(super::route_bench::drive(&url, load, 0.2 * mu, act).await?)
             }
             None => None,
         };

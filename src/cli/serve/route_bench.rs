@@ -23,8 +23,6 @@ pub struct RouteLoad {
     /// Every this many calls a robot reports a pose far from its path (the next leg's start):
     /// the server replans for it in that call.
     pub stray_every: usize,
-    /// The robots' bounding radius (m): start and goal are drawn reachable for it.
-    pub radius: f64,
 }
 
 /// What the routed fleet measured.
@@ -76,10 +74,12 @@ fn pose(p: [f64; 2]) -> Option<pb::Pose2D> {
     Some(pb::Pose2D { x: p[0], y: p[1], yaw: 0.0 })
 }
 
-/// Sets the map, then drives `load.robots` robots on it until `load.seconds` have passed.
+/// Sets the map, then drives `load.robots` robots of bounding radius `radius` (m: their legs
+/// are drawn reachable for it) on it until `load.seconds` have passed.
 pub async fn drive(
     url: &str,
     load: &RouteLoad,
+    radius: f64,
     act: impl Fn(usize, &str) -> pb::ActRequest + Clone + Send + 'static,
 ) -> anyhow::Result<RouteFigures> {
     let source = load.map.display().to_string();
@@ -95,7 +95,7 @@ pub async fn drive(
     let mut robots = tokio::task::JoinSet::new();
     for n in 0..load.robots {
         let mut client = pb::controller_client::ControllerClient::connect(url.to_string()).await?;
-        let legs = legs(&room, &map.frame, load.radius, n, 16);
+        let legs = legs(&room, &map.frame, radius, n, 16);
         let id = format!("routed-{n}");
         let phase = period.mul_f64(n as f64 / load.robots as f64);
         let (stray_every, act) = (load.stray_every.max(1), act.clone());
