@@ -88,6 +88,12 @@ enum BenchWhat {
         /// measure what flushing buys.
         #[arg(long)]
         keep_denormals: bool,
+        /// The update's matrix products: `fp32`, or `bf16` operands with fp32 sums (default:
+        /// the config's `learner.precision`). bf16 is faster only on CPUs with AVX512-BF16
+        /// (`cpu_bf16` in the JSON); elsewhere it computes the same numbers at fp32 speed.
+        /// PyTorch with --torch runs fp32 and bf16 autocast whatever this says.
+        #[arg(long)]
+        precision: Option<dvnav_config::Precision>,
         /// Print one JSON object.
         #[arg(long)]
         json: bool,
@@ -303,9 +309,13 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
             rounds,
             from_checkpoint,
             keep_denormals,
+            precision,
             json,
         } => {
-            let cfg = super::load_config(config.as_ref())?;
+            let mut cfg = super::load_config(config.as_ref())?;
+            if let Some(p) = precision {
+                cfg.learner.precision = p;
+            }
             let threads = match threads.unwrap_or(cfg.learner.threads) {
                 0 => std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
                 n => n,
@@ -360,9 +370,14 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
                         r.threads
                     );
                 }
+                match r.gemm_peak_gflops_bf16 {
+                    Some(p) => println!("bf16 matrix-product peak (AVX512-BF16): {p:.1} GFLOP/s"),
+                    None => println!("no AVX512-BF16 on this CPU: bf16 runs at fp32 speed"),
+                }
                 println!(
-                    "SAC updates/s at batch {}: {:.2} ({:.1} ms/update), {} threads, {}; inference {:.2} ms (batch 1), {:.2} ms (batch 64)",
+                    "SAC updates/s at batch {} in {}: {:.2} ({:.1} ms/update), {} threads, {}; inference {:.2} ms (batch 1), {:.2} ms (batch 64)",
                     r.batch,
+                    r.precision,
                     r.sac_updates_per_s,
                     r.ms_per_update,
                     r.threads,

@@ -209,6 +209,10 @@ pub struct LearnerConfig {
     /// thread pool synchronizes with spin barriers, which on a small machine shared with actors
     /// made two threads slower than one (docs/results.md, "Learner threads").
     pub threads: usize,
+    /// The arithmetic of the networks' matrix products in training: fp32, or bf16 operands
+    /// with fp32 sums (master weights, Adam moments and losses stay fp32). Actors always act
+    /// in fp32.
+    pub precision: Precision,
     /// Every this many updates, evaluate the deterministic policy on the evaluation route of
     /// every curriculum room plus `eval_episodes` random episodes per room, and append the
     /// results to `eval.csv` in the run directory (design §4). 0: no evaluation.
@@ -238,11 +242,44 @@ impl Default for LearnerConfig {
             max_steps_ahead: 2_000,
             transitions_in_flight: 128,
             threads: 1,
+            precision: Precision::Fp32,
             eval_every_updates: 2_000,
             eval_episodes: 10,
             heartbeat_s: 10.0,
             liveness_stall_s: 300.0,
         }
+    }
+}
+
+/// The arithmetic of the learner's matrix products (`learner.precision`).
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Precision {
+    /// fp32 operands and sums.
+    #[default]
+    Fp32,
+    /// bfloat16 operands (rounded to nearest even), fp32 sums: twice the multiply rate on CPUs
+    /// with AVX512-BF16, the same arithmetic at the fp32 rate elsewhere.
+    Bf16,
+}
+
+impl std::str::FromStr for Precision {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "fp32" => Ok(Precision::Fp32),
+            "bf16" => Ok(Precision::Bf16),
+            other => Err(format!("unknown precision `{other}`: expected `fp32` or `bf16`")),
+        }
+    }
+}
+
+impl fmt::Display for Precision {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Precision::Fp32 => "fp32",
+            Precision::Bf16 => "bf16",
+        })
     }
 }
 

@@ -24,6 +24,7 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod bf16;
 pub mod control;
 pub mod dvst;
 pub mod fused;

@@ -40,8 +40,15 @@ pub struct LearnerBench {
     pub gemm_peak_gflops_fp32: Option<f64>,
     /// `gflops` / `gemm_peak_gflops_fp32`.
     pub fraction_of_peak_fp32: Option<f64>,
+    /// The CPU's bf16 matrix-product peak at the same threads (GFLOP/s, dvnav's AVX512-BF16
+    /// kernel; [`peak`]); `None` without AVX512-BF16 or on a GPU.
+    pub gemm_peak_gflops_bf16: Option<f64>,
     /// Whether the CPU has bf16 dot products in hardware (AVX512-BF16).
     pub cpu_bf16: bool,
+    /// The update's matrix-product precision (`learner.precision`): `fp32` or `bf16`.
+    pub precision: String,
+    /// The kernel bf16 products run on here: `avx512-bf16`, or `rounded-fp32` (fp32 speed).
+    pub bf16_kernel: String,
     /// Policy inference latency at batch 1 (ms, mean).
     pub inference_ms_batch1: f64,
     /// Policy inference latency at batch 64 (ms, mean).
@@ -139,11 +146,15 @@ pub fn sac_updates(cfg: &Config, run: &UpdateBench, dev: &Device) -> anyhow::Res
     let n = &cfg.network;
     let rate = updates as f64 / secs;
     let update_gflop = flops::update_flops(cfg, batch) / 1e9;
-    let peak = match dev {
+    let (peak, peak_bf16) = match dev {
         Device::Cpu if run.measure_peak => {
-            Some(peak::gemm_fp32_gflops(learner.threads(), std::time::Duration::from_millis(500))?)
+            let per_thread = std::time::Duration::from_millis(500);
+            (
+                Some(peak::gemm_fp32_gflops(learner.threads(), per_thread)?),
+                peak::gemm_bf16_gflops(learner.threads(), per_thread)?,
+            )
         }
-        _ => None,
+        _ => (None, None),
     };
     Ok(LearnerBench {
         sac_updates_per_s: rate,
@@ -167,7 +178,14 @@ pub fn sac_updates(cfg: &Config, run: &UpdateBench, dev: &Device) -> anyhow::Res
         gflops: update_gflop * rate,
         gemm_peak_gflops_fp32: peak,
         fraction_of_peak_fp32: peak.map(|p| update_gflop * rate / p),
+        gemm_peak_gflops_bf16: peak_bf16,
         cpu_bf16: peak::cpu_has_bf16_dot(),
+        precision: cfg.learner.precision.to_string(),
+        bf16_kernel: match dvnav_nav::bf16::Kernel::detect() {
+            dvnav_nav::bf16::Kernel::Avx512Bf16 => "avx512-bf16",
+            dvnav_nav::bf16::Kernel::RoundedF32 => "rounded-fp32",
+        }
+        .to_string(),
         inference_ms_batch1: latency(1)?,
         inference_ms_batch64: latency(64)?,
     })

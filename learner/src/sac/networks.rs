@@ -101,16 +101,16 @@ pub struct SacNetworks<P = Actor, Q = Critic> {
 
 impl SacNetworks {
     /// Fresh navigation networks, deterministically initialised from `seed`; targets start as
-    /// copies.
+    /// copies. Their matrix products run in `learner.precision`.
     pub fn new(cfg: &Config, seed: u64, dev: &Device) -> Result<Self> {
         let layout = cfg.obs_layout();
-        let n = &cfg.network;
+        let (n, p) = (&cfg.network, cfg.learner.precision);
         Self::build(
             dev,
             seed,
             cfg.sac.initial_alpha,
-            |vb| Actor::new(vb, n, layout),
-            |vb| Critic::new(vb, n, layout),
+            |vb| Ok(Actor::new(vb, n, layout)?.with_precision(p)),
+            |vb| Ok(Critic::new(vb, n, layout)?.with_precision(p)),
         )
     }
 }

@@ -6,11 +6,13 @@
 //!
 //! It runs the real `SacLearner` (the same update as the navigation learner, with MLPs in
 //! place of the CNNs) in-process: no gRPC, no actors. Slow in the dev profile, so it is
-//! `#[ignore]`d in `make test` and run by `make test-learning`, which CI calls.
+//! `#[ignore]`d in `make test` and run by `make test-learning`, which CI calls. It runs twice:
+//! in fp32, and with every matrix product in bf16 (`learner.precision = "bf16"`), which must
+//! learn as well.
 
-use candle_core::{Device, Module, Result, Tensor};
+use candle_core::{Device, Result, Tensor};
 use candle_nn::{Linear, VarBuilder};
-use dvnav_config::SacConfig;
+use dvnav_config::{Precision, SacConfig};
 use dvnav_learner::replay::Batch;
 use dvnav_learner::sac::networks::{GaussianPolicy, QFunction};
 use dvnav_learner::sac::{SacLearner, SacNetworks};
@@ -64,6 +66,12 @@ impl Pendulum {
     }
 }
 
+/// `x·Wᵀ + b` with the product in `precision`.
+fn dense(layer: &Linear, x: &Tensor, precision: Precision) -> Result<Tensor> {
+    let h = dvnav_nav::bf16::matmul(x, &layer.weight().t()?, precision)?;
+    h.broadcast_add(layer.bias().expect("layers with biases"))
+}
+
 /// CleanRL's actor: obs → 256 → 256 → (mean, log std), ReLU, log std squashed into [−5, 2].
 pub struct MlpPolicy {
     fc1: Linear,
@@ -71,17 +79,25 @@ pub struct MlpPolicy {
     mean: Linear,
     log_std: Linear,
     action_dim: usize,
+    precision: Precision,
 }
 
 impl MlpPolicy {
     /// A policy for `obs_dim`-long observations and `action_dim`-long actions.
-    pub fn new(vb: VarBuilder, obs_dim: usize, action_dim: usize, hidden: usize) -> Result<Self> {
+    pub fn new(
+        vb: VarBuilder,
+        obs_dim: usize,
+        action_dim: usize,
+        hidden: usize,
+        precision: Precision,
+    ) -> Result<Self> {
         Ok(Self {
             fc1: candle_nn::linear(obs_dim, hidden, vb.pp("fc1"))?,
             fc2: candle_nn::linear(hidden, hidden, vb.pp("fc2"))?,
             mean: candle_nn::linear(hidden, action_dim, vb.pp("mean"))?,
             log_std: candle_nn::linear(hidden, action_dim, vb.pp("log_std"))?,
             action_dim,
+            precision,
         })
     }
 }
@@ -91,10 +107,10 @@ impl GaussianPolicy for MlpPolicy {
         self.action_dim
     }
     fn mean_log_std(&self, obs: &Tensor) -> Result<(Tensor, Tensor)> {
-        let (min, max) = (-5.0, 2.0);
-        let h = self.fc2.forward(&self.fc1.forward(obs)?.relu()?)?.relu()?;
-        let log_std = ((self.log_std.forward(&h)?.tanh()? + 1.0)? * (0.5 * (max - min)))? + min;
-        Ok((self.mean.forward(&h)?, log_std?))
+        let ((min, max), p) = ((-5.0, 2.0), self.precision);
+        let h = dense(&self.fc2, &dense(&self.fc1, obs, p)?.relu()?, p)?.relu()?;
+        let log_std = ((dense(&self.log_std, &h, p)?.tanh()? + 1.0)? * (0.5 * (max - min)))? + min;
+        Ok((dense(&self.mean, &h, p)?, log_std?))
     }
 }
 
@@ -103,15 +119,23 @@ pub struct MlpCritic {
     fc1: Linear,
     fc2: Linear,
     q: Linear,
+    precision: Precision,
 }
 
 impl MlpCritic {
     /// A critic for `obs_dim`-long observations and `action_dim`-long actions.
-    pub fn new(vb: VarBuilder, obs_dim: usize, action_dim: usize, hidden: usize) -> Result<Self> {
+    pub fn new(
+        vb: VarBuilder,
+        obs_dim: usize,
+        action_dim: usize,
+        hidden: usize,
+        precision: Precision,
+    ) -> Result<Self> {
         Ok(Self {
             fc1: candle_nn::linear(obs_dim + action_dim, hidden, vb.pp("fc1"))?,
             fc2: candle_nn::linear(hidden, hidden, vb.pp("fc2"))?,
             q: candle_nn::linear(hidden, 1, vb.pp("q"))?,
+            precision,
         })
     }
 }
@@ -119,8 +143,9 @@ impl MlpCritic {
 impl QFunction for MlpCritic {
     fn q(&self, obs: &Tensor, action: &Tensor) -> Result<Tensor> {
         let h = Tensor::cat(&[obs, action], 1)?;
-        let h = self.fc2.forward(&self.fc1.forward(&h)?.relu()?)?.relu()?;
-        self.q.forward(&h)?.squeeze(1)
+        let p = self.precision;
+        let h = dense(&self.fc2, &dense(&self.fc1, &h, p)?.relu()?, p)?.relu()?;
+        dense(&self.q, &h, p)?.squeeze(1)
     }
 }
 
@@ -154,7 +179,13 @@ struct Outcome {
     updates: u64,
 }
 
-fn train(total_steps: usize, learning_starts: usize, hidden: usize, seed: u64) -> Result<Outcome> {
+fn train(
+    total_steps: usize,
+    learning_starts: usize,
+    hidden: usize,
+    seed: u64,
+    precision: Precision,
+) -> Result<Outcome> {
     let dev = Device::Cpu;
     let cfg = SacConfig {
         gamma: 0.99,
@@ -176,8 +207,8 @@ fn train(total_steps: usize, learning_starts: usize, hidden: usize, seed: u64) -
         &dev,
         seed,
         cfg.initial_alpha,
-        |vb| MlpPolicy::new(vb, 3, 1, hidden),
-        |vb| MlpCritic::new(vb, 3, 1, hidden),
+        |vb| MlpPolicy::new(vb, 3, 1, hidden, precision),
+        |vb| MlpCritic::new(vb, 3, 1, hidden, precision),
     )?;
     let mut learner = SacLearner::new(nets, cfg.clone(), dev.clone(), seed)?;
     let mut rng = rand_pcg::Pcg64::seed_from_u64(seed ^ 0x9e37_79b9);
@@ -248,29 +279,44 @@ fn pendulum_dynamics_match_gym() {
     assert!(r.abs() < 1e-20 && done);
 }
 
-#[test]
-#[ignore = "trains for minutes; run by `make test-learning` (CI)"]
-fn sac_swings_up_the_pendulum_within_20k_steps() {
+fn swing_up_within_20k_steps(precision: Precision) {
     let started = Instant::now();
-    let out = train(20_000, 5_000, 256, 1).unwrap();
+    let out = train(20_000, 5_000, 256, 1, precision).unwrap();
     let n = out.returns.len();
     let last10 = out.returns[n - 10..].iter().sum::<f64>() / 10.0;
     eprintln!(
-        "pendulum: {n} episodes, {} updates, mean return of the last 10 episodes {last10:.1}, {:.0} s",
+        "pendulum ({precision}): {n} episodes, {} updates, mean return of the last 10 episodes {last10:.1}, {:.0} s",
         out.updates,
         started.elapsed().as_secs_f64()
     );
     assert_eq!(n, 100);
-    assert!(last10 >= -250.0, "mean return of the last 10 episodes {last10:.1} < -250");
+    assert!(
+        last10 >= -250.0,
+        "{precision}: mean return of the last 10 episodes {last10:.1} < -250"
+    );
+}
+
+#[test]
+#[ignore = "trains for minutes; run by `make test-learning` (CI)"]
+fn sac_swings_up_the_pendulum_within_20k_steps() {
+    swing_up_within_20k_steps(Precision::Fp32);
+}
+
+#[test]
+#[ignore = "trains for minutes; run by `make test-learning` (CI)"]
+fn sac_swings_up_the_pendulum_within_20k_steps_in_bf16() {
+    swing_up_within_20k_steps(Precision::Bf16);
 }
 
 #[test]
 fn sac_on_the_pendulum_runs_and_is_deterministic() {
     // A short run with small networks, in `make test`: the generic learner trains an MLP pair
-    // end to end, and the same seed gives the same returns.
-    let a = train(600, 400, 32, 3).unwrap();
-    let b = train(600, 400, 32, 3).unwrap();
-    assert_eq!(a.returns, b.returns);
-    assert_eq!((a.returns.len(), a.updates), (3, 200));
-    assert!(a.returns.iter().all(|r| r.is_finite()));
+    // end to end, and the same seed gives the same returns, in either precision.
+    for precision in [Precision::Fp32, Precision::Bf16] {
+        let a = train(600, 400, 32, 3, precision).unwrap();
+        let b = train(600, 400, 32, 3, precision).unwrap();
+        assert_eq!(a.returns, b.returns, "{precision}");
+        assert_eq!((a.returns.len(), a.updates), (3, 200));
+        assert!(a.returns.iter().all(|r| r.is_finite()));
+    }
 }
