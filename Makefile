@@ -141,7 +141,8 @@ lint:
 fmt:
 	$(CARGO) fmt --all
 
-# Figures as JSON lines: environment steps/s, transport, SAC updates/s and policy latency, and the
+# Figures as JSON lines: environment steps/s, transport, SAC updates/s and policy latency (fp32
+# beside PyTorch, then bf16: `bf16_kernel` says whether this CPU has AVX512-BF16), and the
 # DVST controller's command latency at batch 1 over loopback gRPC (`dvnav serve`, target p99 < 2 ms).
 bench: release
 	./target/release/dvnav bench env --json
@@ -149,6 +150,8 @@ bench: release
 	./target/release/dvnav bench replay --json
 	./target/release/dvnav bench learner --batch 256 --torch --json
 	./target/release/dvnav bench learner --batch 128 --torch --json
+	./target/release/dvnav bench learner --batch 256 --precision bf16 --json
+	./target/release/dvnav bench learner --batch 128 --precision bf16 --json
 	./target/release/dvnav bench serve --json
 	./target/release/dvnav bench plan --json
 
