@@ -205,9 +205,11 @@ pub struct LearnerConfig {
     /// `sac.updates_per_env_step` / `publish_every_updates` weight versions (128 × 0.25 / 50 ≈
     /// 0.6 by default) whatever the number of actors (measured: docs/results.md, issue 16).
     pub transitions_in_flight: usize,
-    /// Threads for the learner's tensor math (0: all cores). Default 1: candle 0.11's CPU
-    /// thread pool synchronizes with spin barriers, which on a small machine shared with actors
-    /// made two threads slower than one (docs/results.md, "Learner threads").
+    /// Threads for the learner's update (0: one per core): the minibatch is cut into row
+    /// shards that run side by side, candle single-threaded in each (its own pool's spin
+    /// barriers made two threads slower than one). Default 1: two make an update 1.7-1.8x
+    /// faster on an idle 2-core machine, but the tests and CI run several trainings at once
+    /// (docs/results.md, "Learner threads").
     pub threads: usize,
     /// The arithmetic of the networks' matrix products in training: fp32, or bf16 operands
     /// with fp32 sums (master weights, Adam moments and losses stay fp32). Actors always act
