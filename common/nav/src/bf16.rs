@@ -135,6 +135,14 @@ impl Kernel {
         if Self::Avx512Bf16.available() { Self::Avx512Bf16 } else { Self::RoundedF32 }
     }
 
+    /// The kernel's name in reports: `avx512-bf16` or `rounded-fp32`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Avx512Bf16 => "avx512-bf16",
+            Self::RoundedF32 => "rounded-fp32",
+        }
+    }
+
     /// True when this CPU can run the kernel.
     pub fn available(self) -> bool {
         match self {

@@ -179,13 +179,9 @@ pub fn sac_updates(cfg: &Config, run: &UpdateBench, dev: &Device) -> anyhow::Res
         gemm_peak_gflops_fp32: peak,
         fraction_of_peak_fp32: peak.map(|p| update_gflop * rate / p),
         gemm_peak_gflops_bf16: peak_bf16,
-        cpu_bf16: peak::cpu_has_bf16_dot(),
+        cpu_bf16: dvnav_nav::bf16::Kernel::Avx512Bf16.available(),
         precision: cfg.learner.precision.to_string(),
-        bf16_kernel: match dvnav_nav::bf16::Kernel::detect() {
-            dvnav_nav::bf16::Kernel::Avx512Bf16 => "avx512-bf16",
-            dvnav_nav::bf16::Kernel::RoundedF32 => "rounded-fp32",
-        }
-        .to_string(),
+        bf16_kernel: dvnav_nav::bf16::Kernel::detect().name().to_string(),
         inference_ms_batch1: latency(1)?,
         inference_ms_batch64: latency(64)?,
     })

@@ -62,19 +62,6 @@ fn one_thread(seed: u64, run_for: Duration, p: Precision) -> candle_core::Result
     Ok(done as f64 * 2.0 * (n * n * n) as f64)
 }
 
-/// Whether the CPU multiplies bf16 pairs into fp32 sums in hardware (AVX512-BF16's
-/// `vdpbf16ps`); elsewhere a bf16 product runs at fp32 speed or slower.
-pub fn cpu_has_bf16_dot() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx512bf16")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

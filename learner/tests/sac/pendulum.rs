@@ -16,6 +16,7 @@ use dvnav_config::{Precision, SacConfig};
 use dvnav_learner::replay::Batch;
 use dvnav_learner::sac::networks::{GaussianPolicy, QFunction};
 use dvnav_learner::sac::{SacLearner, SacNetworks};
+use dvnav_nav::nets::dense;
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, StandardNormal};
 use std::f64::consts::PI;
@@ -64,12 +65,6 @@ impl Pendulum {
         self.steps += 1;
         (-cost, self.steps >= Self::MAX_STEPS)
     }
-}
-
-/// `x·Wᵀ + b` with the product in `precision`.
-fn dense(layer: &Linear, x: &Tensor, precision: Precision) -> Result<Tensor> {
-    let h = dvnav_nav::bf16::matmul(x, &layer.weight().t()?, precision)?;
-    h.broadcast_add(layer.bias().expect("layers with biases"))
 }
 
 /// CleanRL's actor: obs → 256 → 256 → (mean, log std), ReLU, log std squashed into [−5, 2].
