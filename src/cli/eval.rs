@@ -259,6 +259,8 @@ fn eval_env(args: &EvalArgs, cfg: &Config) -> anyhow::Result<dvnav_config::EnvCo
         let base = env.subgoals.clone().unwrap_or_default();
         dvnav_sim::subgoal::SubgoalConfig {
             follow: subgoals == Subgoals::Planner,
+            // A run's mixed training share is not an evaluation setting: every task the same way.
+            follow_share: 1.0,
             lookahead_m: args.lookahead.unwrap_or(base.lookahead_m),
             rotation_shim: base.rotation_shim && !args.no_rotation_shim,
             ..base

@@ -387,9 +387,14 @@ impl NavEnv {
         self.done = None;
         self.active = self.room.timed_active(0);
         self.goal_distance = dist(start.position(), goal);
+        let robust_rng = &mut self.robust_rng;
         self.route = self.cfg.subgoals.as_ref().map(|c| {
             let scale = self.radius / self.cfg.robot_radius;
-            RouteState::begin(c, &self.room, self.radius, scale, start, goal)
+            // Drawn only for a share below 1, so every seed's runs stay as they were; from the
+            // robustness stream so the draw never changes a seed's tasks.
+            let follow =
+                c.follow && (c.follow_share >= 1.0 || robust_rng.random::<f64>() < c.follow_share);
+            RouteState::begin(c, follow, &self.room, self.radius, scale, start, goal)
         });
         self.update_scan();
         self.history.clear();

@@ -28,6 +28,10 @@ pub struct SubgoalConfig {
     /// Feed the lookahead point to the agent as its goal. `false` plans for the reports
     /// (path length, path ratio) while the agent sees only the final goal: mapless.
     pub follow: bool,
+    /// With `follow`, the share of episodes (drawn per episode) that are followed along the
+    /// path; the others are the paper's mapless task (the agent sees the final goal, the reward
+    /// is the straight-line progress), so one run learns both. 1 follows every episode.
+    pub follow_share: f64,
     /// Lookahead L (m, meta robot; times μ for another size).
     pub lookahead_m: f64,
     /// Replan when the robot is farther than this from the path (m, meta robot).
@@ -46,6 +50,7 @@ impl Default for SubgoalConfig {
     fn default() -> Self {
         Self {
             follow: true,
+            follow_share: 1.0,
             lookahead_m: 1.5,
             replan_distance_m: 1.0,
             stall_s: 10.0,
@@ -66,6 +71,12 @@ impl SubgoalConfig {
                 Err((format!("env.subgoals.{k}"), format!("must be above 0, not {x}")))
             }
         };
+        if !(0.0..=1.0).contains(&self.follow_share) {
+            return Err((
+                "env.subgoals.follow_share".into(),
+                format!("must lie in [0, 1], not {}", self.follow_share),
+            ));
+        }
         positive("lookahead_m", self.lookahead_m)?;
         positive("replan_distance_m", self.replan_distance_m)?;
         positive("stall_s", self.stall_s)?;

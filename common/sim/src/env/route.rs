@@ -32,9 +32,11 @@ pub(super) struct RouteState {
 }
 
 impl RouteState {
-    /// Plans from `start` to `goal` for a robot of bounding `radius` and DVST scale `scale`.
+    /// Plans from `start` to `goal` for a robot of bounding `radius` and DVST scale `scale`;
+    /// `follow` says whether the agent is fed this episode's subgoals.
     pub(super) fn begin(
         cfg: &SubgoalConfig,
+        follow: bool,
         room: &Room,
         radius: f64,
         scale: f64,
@@ -45,7 +47,7 @@ impl RouteState {
         let first =
             planner::plan(room.clearance_map(), radius, start.position(), goal, &cfg.planner);
         let stats = RouteStats {
-            follow: cfg.follow,
+            follow,
             planned_length_m: first.as_ref().ok().map(|p| p.length_m),
             replans: 0,
             blocked: first.is_err(),

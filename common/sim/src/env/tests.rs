@@ -874,3 +874,29 @@ fn a_robot_too_big_for_the_door_is_blocked_and_heads_for_the_goal() {
     assert!(stats.blocked && stats.planned_length_m.is_none());
     assert_eq!(env.observed_goal(), [2.0, -1.0]);
 }
+
+#[test]
+fn follow_share_mixes_followed_and_mapless_episodes_without_changing_the_tasks() {
+    let half = crate::subgoal::SubgoalConfig { follow_share: 0.5, ..no_shim2() };
+    let mixed_cfg = EnvConfig { subgoals: Some(half), ..cfg() };
+    let mut mixed = NavEnv::new(door_room(), &mixed_cfg, 7);
+    let mut all = NavEnv::new(door_room(), &EnvConfig { subgoals: Some(no_shim2()), ..cfg() }, 7);
+    let mut followed = 0;
+    for _ in 0..200 {
+        mixed.reset();
+        all.reset();
+        // The same seed draws the same tasks: the share draws from another stream.
+        assert_eq!(mixed.goal(), all.goal());
+        let stats = mixed.route_stats().unwrap();
+        if stats.follow {
+            followed += 1;
+        } else {
+            // A mapless episode: the agent sees the final goal.
+            assert_eq!(mixed.observed_goal(), mixed.goal());
+        }
+        assert!(all.route_stats().unwrap().follow);
+    }
+    assert!((70..=130).contains(&followed), "{followed} of 200 followed");
+    let bad = crate::subgoal::SubgoalConfig { follow_share: 1.5, ..Default::default() };
+    assert_eq!(bad.check().unwrap_err().0, "env.subgoals.follow_share");
+}
