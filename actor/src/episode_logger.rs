@@ -155,6 +155,8 @@ impl EpisodeSelector {
                 reward,
                 goal_distance: env.goal_distance(),
                 goal_angle: env.goal_angle(),
+                subgoal: env.subgoal(),
+                plan: env.planned_path().map(|p| p.points.as_slice()),
             })
         });
         if let Err(e) = written {

@@ -70,6 +70,11 @@ pub struct StepSample {
     pub goal_distance: f64,
     /// Goal bearing in the robot frame (rad).
     pub goal_angle: f64,
+    /// The subgoal the agent observed (`env.subgoals`); `None` when it saw the final goal.
+    pub subgoal: Option<[f64; 2]>,
+    /// The planned path, at the first step and at every step where it changed (a replan; an
+    /// empty one when a replan found none); `None` when unchanged.
+    pub plan: Option<Vec<[f64; 2]>>,
 }
 
 /// Records one episode of a [`NavEnv`] step by step: the trajectory, the path length and, when
@@ -81,6 +86,8 @@ pub struct Recorder {
     commands: CommandCounter,
     samples: Option<Vec<StepSample>>,
     plan: Vec<[f64; 2]>,
+    /// The plan as the last kept sample saw it.
+    sampled_plan: Vec<[f64; 2]>,
 }
 
 impl Recorder {
@@ -93,6 +100,7 @@ impl Recorder {
             commands: CommandCounter::new(env.config().omega_max),
             samples: samples.then(Vec::new),
             plan: env.planned_path().map(|p| p.points.clone()).unwrap_or_default(),
+            sampled_plan: Vec::new(),
         };
         r.trajectory.push(env.pose());
         r.sample(env, 0.0);
@@ -113,6 +121,11 @@ impl Recorder {
     fn sample(&mut self, env: &NavEnv, reward: f32) {
         if let Some(s) = &mut self.samples {
             let (v, omega) = env.velocity();
+            let plan = env.planned_path().map_or(&[][..], |p| p.points.as_slice());
+            let changed = plan != self.sampled_plan.as_slice();
+            if changed {
+                self.sampled_plan = plan.to_vec();
+            }
             s.push(StepSample {
                 step: env.steps(),
                 pose: env.pose(),
@@ -122,6 +135,8 @@ impl Recorder {
                 reward,
                 goal_distance: env.goal_distance(),
                 goal_angle: env.goal_angle(),
+                subgoal: env.subgoal(),
+                plan: changed.then(|| plan.to_vec()),
             });
         }
     }

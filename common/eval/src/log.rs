@@ -63,7 +63,12 @@ impl EvalLogger {
             dt: cfg.dt,
             mu: 1.0,
         })?;
+        // Samples keep the plan only where it changed; the log is given the current one.
+        let mut plan: &[[f64; 2]] = &[];
         for s in samples {
+            if let Some(p) = &s.plan {
+                plan = p;
+            }
             self.logger.log_step(&StepLog {
                 step: s.step,
                 pose: [s.pose.x, s.pose.y, s.pose.yaw],
@@ -78,6 +83,8 @@ impl EvalLogger {
                 reward: s.reward,
                 goal_distance: s.goal_distance,
                 goal_angle: s.goal_angle,
+                subgoal: s.subgoal,
+                plan: (!plan.is_empty()).then_some(plan),
             })?;
         }
         self.logger.end_episode(dvnav_proto::EpisodeSummary {
@@ -155,5 +162,48 @@ mod tests {
             let steps = read_steps(&rec.file, &[s.episode_id].into()).unwrap();
             assert_eq!(steps[&s.episode_id].len(), r.trajectory.len());
         }
+    }
+
+    /// With `env.subgoals`, a logged leg has its plan on `/plan` and every step's subgoal in
+    /// its step record: what the agent was fed, not the final goal.
+    #[test]
+    fn legs_along_a_plan_log_it_and_their_subgoals() {
+        let mut cfg = Config::default();
+        cfg.env.subgoals = Some(dvnav_sim::subgoal::SubgoalConfig::default());
+        let dir = tempfile::tempdir().unwrap();
+        let rooms = vec![Room::builtin("env2").unwrap()];
+        let tasks = training_tasks(&rooms, "eval", 1, 2);
+        let mut log =
+            EvalLogger::create(dir.path(), "eval", "eval", LogMetadata::default(), 100).unwrap();
+        let mut pid = PidPolicy { warmup: cfg.warmup.clone(), env: cfg.env.clone() };
+        let opts = RunOptions { samples: true, ..Default::default() };
+        let results =
+            run_tasks(&tasks, &cfg.env, &mut [&mut pid], opts, &mut |t, d| log.log(t, 0, &d))
+                .unwrap();
+        log.close().unwrap();
+        let legs: Vec<_> = results.iter().flatten().collect();
+        assert!(!legs.is_empty() && legs.iter().all(|r| r.plan.len() >= 2));
+        let records = read_episodes(dir.path()).unwrap();
+        let mut far_subgoals = 0;
+        for rec in &records {
+            let id = rec.summary.episode_id;
+            let steps = read_steps(&rec.file, &[id].into()).unwrap().remove(&id).unwrap();
+            let goal = [rec.summary.goal_x, rec.summary.goal_y];
+            for s in &steps {
+                let sub = s.subgoal.as_ref().expect("every step follows the plan");
+                let from_robot = (sub.x - s.x).hypot(sub.y - s.y);
+                // The lookahead (1.5 m) past the robot's projection on the path, and the robot
+                // stays near the path: never much farther, unless it is the final goal.
+                assert!(from_robot <= 2.0 || [sub.x, sub.y] == goal, "{s:?}");
+                far_subgoals += usize::from([sub.x, sub.y] != goal);
+            }
+        }
+        assert!(far_subgoals > 0, "some subgoals lie on the path short of the goal");
+        let bytes = std::fs::read(&records[0].file).unwrap();
+        let plans = mcap::MessageStream::new(&bytes)
+            .unwrap()
+            .filter(|m| m.as_ref().unwrap().channel.topic == crate::episode_log::TOPIC_PLAN)
+            .count();
+        assert!(plans >= legs.len(), "{plans} plans for {} legs", legs.len());
     }
 }

@@ -602,6 +602,12 @@ impl NavEnv {
         }
     }
 
+    /// The subgoal the agent observes when this episode follows a planned path
+    /// (`env.subgoals`); `None` when it observes the final goal.
+    pub fn subgoal(&self) -> Option<[f64; 2]> {
+        self.route.as_ref().filter(|r| r.follow()).map(RouteState::subgoal)
+    }
+
     /// The reward's d_t: the path left along the plan when following one, else the straight
     /// distance to the goal.
     fn progress_distance(&self) -> f64 {

@@ -7,6 +7,8 @@
 //! |---|---|---|
 //! | [`/scene`](TOPIC_SCENE) | `foxglove.SceneUpdate` | episode start: walls, obstacles, goal, footprint (and the DVST-scaled footprint when μ ≠ 1) |
 //! | [`/path`](TOPIC_PATH) | `foxglove.SceneUpdate` | every [`PATH_EVERY_STEPS`] steps and at the last: the path so far |
+//! | [`/plan`](TOPIC_PLAN) | `foxglove.SceneUpdate` | the first step and every replan of an episode with a planned path (`env.subgoals`): the plan, a line strip |
+//! | [`/subgoal`](TOPIC_SUBGOAL) | `foxglove.SceneUpdate` | every step that follows a planned path: the point the agent heads for |
 //! | [`/tf`](TOPIC_TF) | `foxglove.FrameTransform` | every step: `world` → `robot` (the pose) |
 //! | [`/scan`](TOPIC_SCAN) | `foxglove.LaserScan` | every step, frame `robot` |
 //! | [`/dvnav/step`](TOPIC_STEP) | `dvnav.v1.StepRecord` | every step: action, reward, goal |
@@ -42,7 +44,7 @@
 //! let scan = vec![10.0_f32; lidar.beams];
 //! log.log_step(&StepLog {
 //!     step: 0, pose: [0.0, 0.0, 0.0], scan: &scan, v: 0.0, omega: 0.0, action: [0.0, 0.0],
-//!     reward: 0.0, goal_distance: 2.24, goal_angle: 0.46,
+//!     reward: 0.0, goal_distance: 2.24, goal_angle: 0.46, subgoal: None, plan: None,
 //! })?;
 //! log.end_episode(dvnav_proto::EpisodeSummary { steps: 0, ..Default::default() })?;
 //! log.close()?;
@@ -74,6 +76,12 @@ pub const TOPIC_TF: &str = "/tf";
 pub const TOPIC_SCENE: &str = "/scene";
 /// The path so far (`foxglove.SceneUpdate`, one line strip in frame `world`).
 pub const TOPIC_PATH: &str = "/path";
+/// The planned path of a long task (`foxglove.SceneUpdate`, one line strip `plan` in frame
+/// `world`; deleted when an episode has none).
+pub const TOPIC_PLAN: &str = "/plan";
+/// The subgoal the agent heads for (`foxglove.SceneUpdate`, one sphere `subgoal` in frame
+/// `world`; deleted when the agent sees the final goal).
+pub const TOPIC_SUBGOAL: &str = "/subgoal";
 /// Per-step action, reward and goal (`dvnav.v1.StepRecord`).
 pub const TOPIC_STEP: &str = "/dvnav/step";
 /// Per-episode summary (`dvnav.v1.EpisodeSummary`).

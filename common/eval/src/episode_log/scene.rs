@@ -40,6 +40,10 @@ const ROBOT_COLOR: Color = Color { r: 0.2, g: 0.45, b: 0.95, a: 0.6 };
 const HEADING_COLOR: Color = Color { r: 1.0, g: 1.0, b: 1.0, a: 1.0 };
 const SCALED_COLOR: Color = Color { r: 0.95, g: 0.3, b: 0.85, a: 0.35 };
 const PATH_COLOR: Color = Color { r: 0.2, g: 0.6, b: 1.0, a: 1.0 };
+const PLAN_COLOR: Color = Color { r: 0.1, g: 0.85, b: 0.85, a: 0.8 };
+const SUBGOAL_COLOR: Color = Color { r: 1.0, g: 0.85, b: 0.1, a: 0.9 };
+/// Diameter of the subgoal marker (m).
+const SUBGOAL_MARKER_DIAMETER: f64 = 0.12;
 /// Drawn height of the path above the floor (m), so it shows on top of it.
 const PATH_Z: f64 = 0.02;
 /// Line width of the path (m).
@@ -201,6 +205,62 @@ pub(crate) fn path_update(points: &[Point], timestamp: Timestamp) -> SceneUpdate
             }],
             ..entity("path", WORLD_FRAME, timestamp)
         }],
+    }
+}
+
+/// `/plan`: the planned path (`env.subgoals`) as one line strip in frame `world`, thinner and
+/// a little lower than the driven path; replaces the previous `plan` entity. An empty plan
+/// deletes it (a mapless episode after a planned one, or a route left blocked).
+pub(crate) fn plan_update(points: &[Point], timestamp: Timestamp) -> SceneUpdate {
+    if points.is_empty() {
+        return delete_entity("plan", timestamp);
+    }
+    SceneUpdate {
+        deletions: vec![],
+        entities: vec![SceneEntity {
+            lines: vec![LinePrimitive {
+                r#type: line_primitive::Type::LineStrip as i32,
+                pose: Some(pose(0.0, 0.0, 0.0, 0.0)),
+                thickness: 0.5 * PATH_WIDTH,
+                scale_invariant: false,
+                points: points.iter().map(|&p| point(p, 0.5 * PATH_Z)).collect(),
+                color: Some(PLAN_COLOR),
+                ..Default::default()
+            }],
+            ..entity("plan", WORLD_FRAME, timestamp)
+        }],
+    }
+}
+
+/// `/subgoal`: the point the agent heads for, a small sphere in frame `world` replacing the
+/// previous `subgoal` entity; `None` deletes it.
+pub(crate) fn subgoal_update(subgoal: Option<Point>, timestamp: Timestamp) -> SceneUpdate {
+    let Some(p) = subgoal else {
+        return delete_entity("subgoal", timestamp);
+    };
+    let d = SUBGOAL_MARKER_DIAMETER;
+    SceneUpdate {
+        deletions: vec![],
+        entities: vec![SceneEntity {
+            spheres: vec![SpherePrimitive {
+                pose: Some(pose(p[0], p[1], 0.5 * d, 0.0)),
+                size: size(d, d, d),
+                color: Some(SUBGOAL_COLOR),
+            }],
+            ..entity("subgoal", WORLD_FRAME, timestamp)
+        }],
+    }
+}
+
+/// Deletes the entity `id` of a topic.
+fn delete_entity(id: &str, timestamp: Timestamp) -> SceneUpdate {
+    SceneUpdate {
+        deletions: vec![SceneEntityDeletion {
+            timestamp: Some(timestamp),
+            r#type: scene_entity_deletion::Type::MatchingId as i32,
+            id: id.to_string(),
+        }],
+        entities: vec![],
     }
 }
 

@@ -128,6 +128,8 @@ fn log_episode_mu(
             reward: if step == 0 { 0.0 } else { 0.19 },
             goal_distance: 4.0 - 0.1 * f64::from(step),
             goal_angle: -0.05 * f64::from(step),
+            subgoal: None,
+            plan: None,
         })
         .unwrap();
     }
@@ -616,6 +618,8 @@ fn a_file_still_being_written_reads_like_a_killed_actor_left_it() {
             reward: 0.0,
             goal_distance: 1.0,
             goal_angle: 0.0,
+            subgoal: None,
+            plan: None,
         })
         .unwrap();
     }
@@ -670,6 +674,8 @@ fn misuse_is_an_error() {
         reward: 0.0,
         goal_distance: 1.0,
         goal_angle: 0.0,
+        subgoal: None,
+        plan: None,
     };
     let scan: &'static [f32] = scan.leak();
     assert!(log.log_step(&step(0, scan)).is_err(), "step outside an episode");
@@ -873,7 +879,16 @@ fn foxglove_layout_refers_to_logged_topics_and_fields() {
     let layout: serde_json::Value =
         serde_json::from_str(include_str!("../../../../deploy/foxglove/dvnav-episode-layout.json"))
             .unwrap();
-    let topics = [TOPIC_SCAN, TOPIC_TF, TOPIC_SCENE, TOPIC_PATH, TOPIC_STEP, TOPIC_EPISODE];
+    let topics = [
+        TOPIC_SCAN,
+        TOPIC_TF,
+        TOPIC_SCENE,
+        TOPIC_PATH,
+        TOPIC_PLAN,
+        TOPIC_SUBGOAL,
+        TOPIC_STEP,
+        TOPIC_EPISODE,
+    ];
     let fds = prost_types::FileDescriptorSet::decode(dvnav_proto::FILE_DESCRIPTOR_SET).unwrap();
     let step_fields: BTreeSet<String> = fds
         .file
@@ -890,7 +905,7 @@ fn foxglove_layout_refers_to_logged_topics_and_fields() {
             for topic in t.keys() {
                 assert!(topics.contains(&topic.as_str()), "{id}: unknown topic {topic}");
             }
-            for must in [TOPIC_SCENE, TOPIC_PATH, TOPIC_SCAN] {
+            for must in [TOPIC_SCENE, TOPIC_PATH, TOPIC_PLAN, TOPIC_SUBGOAL, TOPIC_SCAN] {
                 assert_eq!(t[must]["visible"], true, "{id}: {must} shown");
             }
         }
@@ -910,5 +925,94 @@ fn foxglove_layout_refers_to_logged_topics_and_fields() {
     let tree = layout["layout"].to_string();
     for id in panels.keys() {
         assert!(tree.contains(&format!("\"{id}\"")), "{id} is not in the layout tree");
+    }
+}
+
+/// An episode that follows a planned path (with one replan), then a mapless one, in one file:
+/// `/plan` carries the plan at the first step and at the replan only, `/subgoal` every followed
+/// step, each step record its subgoal, and the mapless episode deletes both markers.
+#[test]
+fn plans_and_subgoals_are_drawn_and_recorded() {
+    let dir = tempfile::tempdir().unwrap();
+    let (room, lidar) = (room(), LidarConfig::default());
+    let mut log = EpisodeLogger::create(dir.path(), "p", meta(), 10).unwrap();
+    let first: Vec<[f64; 2]> = vec![[-2.0, -0.5], [0.0, 1.0], [2.0, 0.5]];
+    let replanned: Vec<[f64; 2]> = vec![[-1.0, -0.5], [1.0, -1.5], [2.0, 0.5]];
+    let subgoal = |k: u32| [-1.0 + 0.1 * f64::from(k), 0.2];
+    for (id, followed) in [(0u64, true), (1, false)] {
+        let ep = Episode { id, steps: 6, outcome: dvnav_proto::Outcome::Success, stage: 0 };
+        log.begin_episode(&EpisodeStart {
+            episode_id: id,
+            room: &room,
+            robot_radius: RADIUS,
+            goal: goal_of(&ep),
+            lidar: &lidar,
+            dt: DT,
+            mu: 1.0,
+        })
+        .unwrap();
+        for step in 0..=ep.steps {
+            let pose = pose_at(&ep, step);
+            let scan = scan_at(pose, &room, &lidar);
+            let plan = if step < 4 { &first } else { &replanned };
+            log.log_step(&StepLog {
+                step,
+                pose,
+                scan: &scan,
+                v: 0.5,
+                omega: 0.0,
+                action: [1.0, 0.0],
+                reward: 0.1,
+                goal_distance: 3.0,
+                goal_angle: 0.0,
+                subgoal: followed.then(|| subgoal(step)),
+                plan: followed.then_some(plan.as_slice()),
+            })
+            .unwrap();
+        }
+        log.end_episode(dvnav_proto::EpisodeSummary { steps: ep.steps, ..Default::default() })
+            .unwrap();
+    }
+    log.close().unwrap();
+
+    let [file] = &mcap_files(dir.path())[..] else { panic!("one file") };
+    let (mut plans, mut subgoals, mut records) = (Vec::new(), Vec::new(), Vec::new());
+    for m in messages(file) {
+        match m.channel.topic.as_str() {
+            TOPIC_PLAN | TOPIC_SUBGOAL => {
+                assert_foxglove_schema(&m, "foxglove.SceneUpdate");
+                let u = SceneUpdate::decode(m.data.as_ref()).unwrap();
+                let out = if m.channel.topic == TOPIC_PLAN { &mut plans } else { &mut subgoals };
+                out.push((m.log_time, u));
+            }
+            TOPIC_STEP => records.push(dvnav_proto::StepRecord::decode(m.data.as_ref()).unwrap()),
+            _ => {}
+        }
+    }
+    // /plan: the first plan at step 0, the replan at step 4, and its deletion when the mapless
+    // episode begins (one control period after the first ended).
+    let times: Vec<u64> = plans.iter().map(|(t, _)| *t).collect();
+    assert_eq!(times, [0, 4 * DT_NS, 7 * DT_NS]);
+    for ((_, u), want) in plans.iter().zip([&first, &replanned]) {
+        let [e] = &u.entities[..] else { panic!("one plan entity") };
+        assert_eq!((e.id.as_str(), e.frame_id.as_str()), ("plan", "world"));
+        let got: Vec<[f64; 2]> = e.lines[0].points.iter().map(|p| [p.x, p.y]).collect();
+        assert_eq!(&got, want);
+    }
+    let deleted = &plans[2].1;
+    assert!(deleted.entities.is_empty());
+    assert_eq!(deleted.deletions[0].id, "plan");
+    // /subgoal: every step of the followed episode, then one deletion.
+    assert_eq!(subgoals.len(), 7 + 1);
+    for (k, (_, u)) in subgoals[..7].iter().enumerate() {
+        let c = u.entities[0].spheres[0].pose.unwrap().position.unwrap();
+        assert_eq!([c.x, c.y], subgoal(k as u32));
+    }
+    assert_eq!(subgoals[7].1.deletions[0].id, "subgoal");
+    // Step records keep the subgoal, and none in the mapless episode.
+    assert_eq!(records.len(), 14);
+    for r in &records {
+        let want = (r.episode_id == 0).then(|| subgoal(r.step));
+        assert_eq!(r.subgoal.as_ref().map(|p| [p.x, p.y]), want, "{r:?}");
     }
 }

@@ -12,9 +12,13 @@ use foxglove::{Channel, Context, McapCompression, McapWriteOptions, McapWriterHa
 use mcap::write::NoSeek;
 
 use super::proto_msg::Dvnav;
-use super::scene::{ROBOT_FRAME, WORLD_FRAME, episode_scene, path_update, yaw_quaternion};
+use super::scene::{
+    ROBOT_FRAME, WORLD_FRAME, episode_scene, path_update, plan_update, subgoal_update,
+    yaw_quaternion,
+};
 use super::{
-    METADATA_NAME, TOPIC_EPISODE, TOPIC_PATH, TOPIC_SCAN, TOPIC_SCENE, TOPIC_STEP, TOPIC_TF,
+    METADATA_NAME, TOPIC_EPISODE, TOPIC_PATH, TOPIC_PLAN, TOPIC_SCAN, TOPIC_SCENE, TOPIC_STEP,
+    TOPIC_SUBGOAL, TOPIC_TF,
 };
 use dvnav_config::LidarConfig;
 use dvnav_sim::RoomSpec;
@@ -106,6 +110,13 @@ pub struct StepLog<'a> {
     pub goal_distance: f64,
     /// Goal bearing in the robot frame (rad).
     pub goal_angle: f64,
+    /// The point the agent was fed as its goal when following a planned path
+    /// (`env.subgoals`, world frame, m); `None` when it saw the final goal. Drawn on
+    /// `/subgoal` and kept in the step record.
+    pub subgoal: Option<[f64; 2]>,
+    /// The episode's current planned path (world frame, m), if it has one: drawn on `/plan`
+    /// at the first step and again at every step where it differs (a replan).
+    pub plan: Option<&'a [[f64; 2]]>,
 }
 
 /// The channels of one logger, all in the logger's own [`Context`].
@@ -114,6 +125,8 @@ struct Channels {
     tf: Channel<FrameTransform>,
     scene: Channel<SceneUpdate>,
     path: Channel<SceneUpdate>,
+    plan: Channel<SceneUpdate>,
+    subgoal: Channel<SceneUpdate>,
     step: Channel<Dvnav<dvnav_proto::StepRecord>>,
     episode: Channel<Dvnav<dvnav_proto::EpisodeSummary>>,
 }
@@ -125,6 +138,8 @@ impl Channels {
             tf: ctx.channel_builder(TOPIC_TF).build(),
             scene: ctx.channel_builder(TOPIC_SCENE).build(),
             path: ctx.channel_builder(TOPIC_PATH).build(),
+            plan: ctx.channel_builder(TOPIC_PLAN).build(),
+            subgoal: ctx.channel_builder(TOPIC_SUBGOAL).build(),
             step: ctx.channel_builder(TOPIC_STEP).build(),
             episode: ctx.channel_builder(TOPIC_EPISODE).build(),
         }
@@ -139,6 +154,9 @@ struct OpenFile {
     episodes: u64,
     /// Where the next episode starts on this file's clock (ns).
     next_base_ns: u64,
+    /// `/plan` and `/subgoal` show an entity that the next episode must delete.
+    plan_shown: bool,
+    subgoal_shown: bool,
 }
 
 /// The episode being written.
@@ -158,6 +176,8 @@ struct OpenEpisode {
     path: Vec<[f64; 2]>,
     /// Whether `/path` already has the latest step.
     path_published: bool,
+    /// The plan last drawn on `/plan` in this episode (empty: none).
+    plan: Vec<[f64; 2]>,
 }
 
 /// Writes one actor's logged episodes into rotated MCAP files `DIR/{prefix}-{index:05}.mcap`.
@@ -322,7 +342,14 @@ impl EpisodeLogger {
                 .write_metadata(METADATA_NAME, self.meta.to_map(index))
                 .with_context(|| format!("writing metadata to {}", path.display()))?;
             tracing::debug!(path = %path.display(), "episode log opened");
-            return Ok(OpenFile { handle, path, episodes: 0, next_base_ns: 0 });
+            return Ok(OpenFile {
+                handle,
+                path,
+                episodes: 0,
+                next_base_ns: 0,
+                plan_shown: false,
+                subgoal_shown: false,
+            });
         }
     }
 
@@ -387,12 +414,24 @@ impl EpisodeLogger {
             mu: ep.mu,
             path: Vec::with_capacity(512),
             path_published: false,
+            plan: Vec::new(),
         });
-        self.channels.scene.log_with_time(&episode_scene(ep, timestamp(base_ns)), base_ns);
+        let stamp = timestamp(base_ns);
+        self.channels.scene.log_with_time(&episode_scene(ep, stamp), base_ns);
+        // The scene's "delete all" covers `/scene` only: the last episode's plan and subgoal
+        // live on their own topics.
+        let file = self.file.as_mut().expect("opened above");
+        if std::mem::take(&mut file.plan_shown) {
+            self.channels.plan.log_with_time(&plan_update(&[], stamp), base_ns);
+        }
+        if std::mem::take(&mut file.subgoal_shown) {
+            self.channels.subgoal.log_with_time(&subgoal_update(None, stamp), base_ns);
+        }
         Ok(())
     }
 
-    /// Logs one step on `/tf`, `/scan` and `/dvnav/step` at `episode start + step·dt`.
+    /// Logs one step on `/tf`, `/scan` and `/dvnav/step` at `episode start + step·dt`, and on
+    /// `/plan` and `/subgoal` when the episode follows a planned path.
     pub fn log_step(&mut self, s: &StepLog<'_>) -> Result<()> {
         let Some(ep) = self.episode.as_mut() else {
             bail!("episode log: step {} logged outside an episode", s.step);
@@ -416,6 +455,19 @@ impl EpisodeLogger {
         ep.path_published = s.step.is_multiple_of(PATH_EVERY_STEPS);
         if ep.path_published {
             self.channels.path.log_with_time(&path_update(&ep.path, stamp), t);
+        }
+        if let Some(file) = self.file.as_mut() {
+            let plan = s.plan.unwrap_or_default();
+            if plan != ep.plan.as_slice() {
+                self.channels.plan.log_with_time(&plan_update(plan, stamp), t);
+                file.plan_shown = !plan.is_empty();
+                ep.plan.clear();
+                ep.plan.extend_from_slice(plan);
+            }
+            if s.subgoal.is_some() || file.subgoal_shown {
+                self.channels.subgoal.log_with_time(&subgoal_update(s.subgoal, stamp), t);
+                file.subgoal_shown = s.subgoal.is_some();
+            }
         }
 
         self.channels.tf.log_with_time(
@@ -451,6 +503,7 @@ impl EpisodeLogger {
                 x,
                 y,
                 yaw,
+                subgoal: s.subgoal.map(|[x, y]| dvnav_proto::Point2 { x, y }),
             }),
             t,
         );
