@@ -2,7 +2,8 @@
 //! where the sensor saw them from the pose of the time), the robot's path coloured by the
 //! commanded speed, where the controller's commands alone would have taken it (open loop from
 //! the start), the start, the goal with its tolerance, where it arrived, a scale bar and the
-//! frame's extent; below, the commanded and the recorded ω over time.
+//! frame's extent; below, the commanded and the recorded ω over time. A robot that followed
+//! its planner's paths also shows each path (thin, the latest darker) and the subgoals.
 
 use super::{Canvas, INK, Rgba, WHITE, WorldView, text};
 
@@ -24,6 +25,10 @@ pub struct ReplayFigure {
     pub commanded_path: Vec<[f64; 2]>,
     /// At each scan: its time (s), the commanded ω and the recorded (odometry) ω (rad/s).
     pub omega: Vec<(f64, f64, f64)>,
+    /// The planner's paths the robot followed, in order; empty without a route.
+    pub plans: Vec<Vec<[f64; 2]>>,
+    /// The subgoal the controller gave at each scan on a route.
+    pub subgoals: Vec<[f64; 2]>,
 }
 
 const MARGIN: f32 = 16.0;
@@ -33,6 +38,8 @@ const START: Rgba = Rgba::hex(0x2b6cb0);
 const GOAL: Rgba = Rgba::hex(0x2f855a);
 const COMMANDED: Rgba = Rgba::hex(0x6b46c1);
 const RECORDED: Rgba = Rgba::hex(0xa0aec0);
+const PLAN: Rgba = Rgba::hex(0x0987a0);
+const SUBGOAL: Rgba = Rgba::hex(0xd69e2e);
 /// Height (px) of the ω strip below the map, and of the lines of text under it.
 const STRIP: f32 = 90.0;
 const CAPTION: f32 = 22.0;
@@ -60,6 +67,14 @@ pub fn render(fig: &ReplayFigure, size: u32) -> anyhow::Result<Canvas> {
     };
     for p in fig.returns.iter().map(|&p| view.px(p)).filter(|&p| inside(p)) {
         canvas.fill_rect(p.0 - 0.5, p.1 - 0.5, 1.5, 1.5, RETURN.alpha(90));
+    }
+    for (i, plan) in fig.plans.iter().enumerate().filter(|(_, p)| p.len() > 1) {
+        let pts: Vec<(f32, f32)> = plan.iter().map(|&p| view.px(p)).collect();
+        let latest = i + 1 == fig.plans.len();
+        canvas.stroke_polyline(&pts, false, 1.5, PLAN.alpha(if latest { 230 } else { 90 }));
+    }
+    for p in fig.subgoals.iter().map(|&p| view.px(p)).filter(|&p| inside(p)) {
+        canvas.fill_circle(p.0, p.1, 2.5, SUBGOAL.alpha(200));
     }
     // The path, each step coloured by the commanded speed: red stopped, green at the fastest.
     let v_max = fig.path.iter().map(|(_, v)| v.abs()).fold(1e-9, f64::max);
@@ -94,11 +109,13 @@ pub fn render(fig: &ReplayFigure, size: u32) -> anyhow::Result<Canvas> {
     draw_frame(&mut canvas, &view);
     let below = view.top + view.size + 6.0;
     let caption = format!(
-        "x {:.1} .. {:.1} m, y {:.1} .. {:.1} m (odometry frame); purple: the commands, open loop",
+        "x {:.1} .. {:.1} m, y {:.1} .. {:.1} m (odometry frame); purple: the commands, open \
+         loop{}",
         center[0] - side / 2.0,
         center[0] + side / 2.0,
         center[1] - side / 2.0,
-        center[1] + side / 2.0
+        center[1] + side / 2.0,
+        if fig.plans.is_empty() { "" } else { "; teal: the planner's paths; yellow: subgoals" }
     );
     text::draw(&mut canvas, MARGIN, below, &caption, 1, INK);
     if !fig.omega.is_empty() {
@@ -168,6 +185,8 @@ mod tests {
             duration_s: 2.0,
             commanded_path: vec![[0.0, 0.0], [0.0, 1.5]],
             omega: vec![(0.0, 0.5, 0.0), (1.0, -0.5, 0.1), (2.0, 0.0, 0.0)],
+            plans: vec![vec![[1.0, -1.0], [2.0, -1.0]]],
+            subgoals: vec![[0.5, -2.0]],
         };
         let c = render(&fig, 200).unwrap();
         let view = WorldView {
@@ -183,6 +202,9 @@ mod tests {
         };
         assert_eq!(at([0.0, 0.0]), START);
         assert_ne!(at([0.5, 0.0]), WHITE, "the path");
+        assert_ne!(at([1.5, -1.0]), WHITE, "the plan");
+        assert_ne!(at([0.5, -2.0]), WHITE, "the subgoal");
+        assert_eq!(at([1.0, -2.0]), WHITE, "nothing else there");
         assert_ne!(at([1.0, 1.0]), WHITE, "a return");
         assert_eq!(at([0.5, 2.0]), WHITE, "nothing there");
         assert_eq!(at([2.0, 0.0]), GOAL);

@@ -8,7 +8,7 @@ import subprocess
 import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from conftest import REPO, TYPES, corridor_scan, odometry
+from conftest import REPO, TYPES, T, corridor_scan, header, odometry, quaternion
 
 
 def write_bag(path, scans=40, scan_topic="/scan", odom_type="nav_msgs/msg/Odometry"):
@@ -101,3 +101,75 @@ def test_topics_without_the_slash_and_a_bag_without_odometry(dvnav, tmp_path):
     assert "fixed sensor" in r.stderr, r.stderr
     rows = list(csv.DictReader(out.open()))
     assert len(rows) == 12 and all(float(row["x"]) == 0.0 and float(row["odom_v"]) == 0.0 for row in rows)
+
+
+def write_bag_with_plans(path, plans, frame="odom", scans=40):
+    """`write_bag`'s corridor drive, plus the robot's planner's nav_msgs/Path messages: `plans`
+    is a list of (log time s, [(x, y), ...])."""
+    with Writer(path, version=8, storage_plugin=StoragePlugin.MCAP) as w:
+        scan_c = w.add_connection("/scan", "sensor_msgs/msg/LaserScan", typestore=TYPES)
+        odom_c = w.add_connection("/odom", "nav_msgs/msg/Odometry", typestore=TYPES)
+        plan_c = w.add_connection("/plan", "nav_msgs/msg/Path", typestore=TYPES)
+        events = [(0.1 * k, scan_c, corridor_scan(0.1 * k, y=0.0, yaw=0.0)) for k in range(scans)]
+        for k in range(3, 2 * scans):
+            t = 0.05 * k - 0.03
+            events.append((t, odom_c, odometry(t, min(0.5 * t, 2.0), 0.0, 0.0, v=0.5)))
+        for t, points in plans:
+            poses = [
+                T["geometry_msgs/msg/PoseStamped"](
+                    header=header(t, frame),
+                    pose=T["geometry_msgs/msg/Pose"](
+                        position=T["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
+                        orientation=quaternion(0.0),
+                    ),
+                )
+                for x, y in points
+            ]
+            events.append((t, plan_c, T["nav_msgs/msg/Path"](header=header(t, frame), poses=poses)))
+        for t, c, msg in sorted(events, key=lambda e: e[0]):
+            w.write(c, int(1e9 + t * 1e9), TYPES.serialize_cdr(msg, msg.__msgtype__))
+    return path
+
+
+def test_a_bag_with_the_planners_paths_is_replayed_on_a_route(dvnav, tmp_path):
+    # The first path down the corridor to x = 4 m; at 2.5 s the planner shortens it to x = 3 m.
+    plans = [(0.05, [(0.0, 0.0), (2.0, 0.0), (4.0, 0.0)]), (2.5, [(1.25, 0.0), (3.0, 0.0)])]
+    bag = write_bag_with_plans(tmp_path / "bag", plans)
+    out, fig = tmp_path / "commands.csv", tmp_path / "replay.png"
+    r = replay(dvnav, bag, "--out", str(out), "--figure", str(fig))
+    assert "2 paths on /plan" in r.stderr and "the goal at each path's end" in r.stderr, r.stderr
+    rows = list(csv.DictReader(out.open()))
+    assert len(rows) == 38, r.stdout
+    for row in rows:
+        x, t = float(row["x"]), float(row["time_s"])
+        end = 4.0 if t < 2.5 - 1e-9 else 3.0
+        start = 0.0 if t < 2.5 - 1e-9 else 1.25
+        # The route's goal, the path left along it, and the meta robot's 1.5 m lookahead: the
+        # subgoal lies on the path 1.5 m past the robot's projection on it (the path's start
+        # while the robot is short of it), or is the goal once within that.
+        assert float(row["goal_distance"]) == pytest.approx(end - x, abs=1e-9), row
+        assert float(row["remaining_m"]) == pytest.approx(end - x, abs=1e-6), row
+        want = min(max(x, start) + 1.5, end)
+        assert float(row["subgoal_x"]) == pytest.approx(want, abs=1e-6), row
+        assert float(row["subgoal_y"]) == pytest.approx(0.0, abs=1e-9), row
+        assert row["arrived"] == "false"
+    assert any(float(r["v"]) > 0.2 for r in rows), "it drives down the corridor"
+    assert fig.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # --goal is only the fallback before the first path: the route's goal wins.
+    replay(dvnav, bag, "--goal", "-5,0", "--out", str(out))
+    rows = list(csv.DictReader(out.open()))
+    assert float(rows[0]["goal_distance"]) == pytest.approx(4.0 - float(rows[0]["x"]), abs=1e-9)
+
+
+def test_a_bag_without_paths_needs_a_goal_and_a_map_frame_path_is_flagged(dvnav, tmp_path):
+    bag = write_bag(tmp_path / "bag", scans=5)
+    r = replay(dvnav, bag, check=False)
+    assert r.returncode != 0 and "no goal" in r.stderr and "--plan-topic" in r.stderr, r.stderr
+    # Without a path on --plan-topic the rows have no subgoal, as before.
+    out = tmp_path / "c.csv"
+    replay(dvnav, bag, "--goal", "1,0", "--out", str(out))
+    assert all(row["subgoal_x"] == "" for row in csv.DictReader(out.open()))
+    # A path in the map frame is read as the odometry frame, and said so.
+    mapped = write_bag_with_plans(tmp_path / "mapped", [(0.05, [(0.0, 0.0), (3.0, 0.0)])], "map", 8)
+    r = replay(dvnav, mapped)
+    assert "paths are in frame `map`, the odometry in `odom`" in r.stderr, r.stderr

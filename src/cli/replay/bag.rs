@@ -1,5 +1,5 @@
-//! A recorded ROS 2 bag's scans and odometry: the MCAP file (or the `.mcap` files of a rosbag2
-//! directory), the two topics decoded from CDR, in the order they were logged.
+//! A recorded ROS 2 bag's scans, odometry and planned paths: the MCAP file (or the `.mcap`
+//! files of a rosbag2 directory), the topics decoded from CDR, in the order they were logged.
 
 use super::ros::{self, LaserScan, Odometry};
 use std::collections::BTreeMap;
@@ -9,11 +9,13 @@ use std::path::{Path, PathBuf};
 /// Odometry comes near it, a corrupt length does.
 const MAX_RECORD_BYTES: usize = 256 << 20;
 
-/// What a bag holds on the two topics, each message with its log time (ns).
+/// What a bag holds on the topics, each message with its log time (ns).
 #[derive(Debug, Default)]
 pub struct Recording {
     pub scans: Vec<(u64, LaserScan)>,
     pub odometry: Vec<(u64, Odometry)>,
+    /// The robot's planner's paths (`nav_msgs/msg/Path`), each replacing the one before.
+    pub plans: Vec<(u64, ros::Path)>,
 }
 
 /// The `.mcap` files of `path`: the file itself, or those of a rosbag2 directory in name order.
@@ -37,11 +39,17 @@ fn mcap_files(path: &Path) -> anyhow::Result<Vec<PathBuf>> {
     Ok(files)
 }
 
-/// Reads `scan_topic` (sensor_msgs/msg/LaserScan) and `odom_topic` (nav_msgs/msg/Odometry)
-/// from the bag at `path`; a topic name matches with or without its leading slash (`scan` is
-/// `/scan`). No scan, or a topic of another type or not CDR, is an error naming the topics the
-/// bag has; no odometry is not (a fixed sensor: the caller decides).
-pub fn read(path: &Path, scan_topic: &str, odom_topic: &str) -> anyhow::Result<Recording> {
+/// Reads `scan_topic` (sensor_msgs/msg/LaserScan), `odom_topic` (nav_msgs/msg/Odometry) and
+/// `plan_topic` (nav_msgs/msg/Path) from the bag at `path`; a topic name matches with or
+/// without its leading slash (`scan` is `/scan`). No scan, or a topic of another type or not
+/// CDR, is an error naming the topics the bag has; no odometry and no plan are not (a fixed
+/// sensor, a robot without a planner: the caller decides).
+pub fn read(
+    path: &Path,
+    scan_topic: &str,
+    odom_topic: &str,
+    plan_topic: &str,
+) -> anyhow::Result<Recording> {
     let same = |a: &str, b: &str| a.trim_start_matches('/') == b.trim_start_matches('/');
     let mut rec = Recording::default();
     // topic -> (schema name, message encoding, count)
@@ -68,6 +76,8 @@ pub fn read(path: &Path, scan_topic: &str, odom_topic: &str) -> anyhow::Result<R
                 "sensor_msgs/msg/LaserScan"
             } else if same(topic, odom_topic) {
                 "nav_msgs/msg/Odometry"
+            } else if same(topic, plan_topic) {
+                "nav_msgs/msg/Path"
             } else {
                 continue;
             };
@@ -83,8 +93,10 @@ pub fn read(path: &Path, scan_topic: &str, odom_topic: &str) -> anyhow::Result<R
             };
             if same(topic, scan_topic) {
                 rec.scans.push((m.log_time, ros::decode(&m.data).map_err(context)?));
-            } else {
+            } else if same(topic, odom_topic) {
                 rec.odometry.push((m.log_time, ros::decode(&m.data).map_err(context)?));
+            } else {
+                rec.plans.push((m.log_time, ros::decode(&m.data).map_err(context)?));
             }
         }
     }
@@ -113,5 +125,6 @@ pub fn read(path: &Path, scan_topic: &str, odom_topic: &str) -> anyhow::Result<R
     // Several files, or a recorder that wrote out of order: by log time, stable.
     rec.scans.sort_by_key(|(t, _)| *t);
     rec.odometry.sort_by_key(|(t, _)| *t);
+    rec.plans.sort_by_key(|(t, _)| *t);
     Ok(rec)
 }

@@ -3,6 +3,11 @@
 //! asks the controller what it would have commanded, exactly as `dvnav serve` answers a robot
 //! sending that scan; the commands go to a CSV file, the scans and the path to a figure. Try a
 //! bag of your own robot before letting the controller drive it.
+//!
+//! A bag with the robot's own planner's paths (`nav_msgs/msg/Path` on `--plan-topic`, Nav2's
+//! `/plan`) is replayed as `dvnav serve` drives a robot on a route (`SetRoute`): each path, from
+//! its log time on, is the robot's route, each scan's odometry pose goes with it, and the
+//! controller picks the subgoal; the rows and the figure show the plans and the subgoals.
 
 mod bag;
 mod ros;
@@ -25,9 +30,15 @@ pub struct ReplayArgs {
     /// Topic of the robot's `nav_msgs/msg/Odometry`.
     #[arg(long, default_value = "/odom")]
     odom_topic: String,
-    /// The goal `X,Y` (m) in the odometry frame.
+    /// The goal `X,Y` (m) in the odometry frame. Not needed when the bag has the planner's
+    /// paths on `--plan-topic`: the route's last pose is the goal once the first path arrives.
     #[arg(long, value_parser = parse_goal, allow_hyphen_values = true)]
-    goal: [f64; 2],
+    goal: Option<[f64; 2]>,
+    /// Topic of the robot's planner's `nav_msgs/msg/Path` (Nav2's `/plan`), in the odometry
+    /// frame: each path is the robot's route from its log time on, the controller picks the
+    /// subgoal on it. A bag without this topic is replayed towards `--goal`.
+    #[arg(long, default_value = "/plan")]
+    plan_topic: String,
     /// The robot's footprint file (see `footprints/`; its `[lidar]` table places the sensor).
     /// Default: the meta robot itself, its LiDAR on the axle centre.
     #[arg(long)]
@@ -79,6 +90,11 @@ pub struct CommandRow {
     pub omega: f64,
     /// Within the goal tolerance (the command is then 0, 0).
     pub arrived: bool,
+    /// On a route (`--plan-topic`): the subgoal the controller fed the agent (odometry frame,
+    /// m) and the path left to the route's goal (m); empty without a route.
+    pub subgoal_x: Option<f64>,
+    pub subgoal_y: Option<f64>,
+    pub remaining_m: Option<f64>,
     /// The goal tolerance (m): the meta agent's, scaled by μ.
     pub goal_tolerance: f64,
     /// Meta beams no valid reading reached.
@@ -95,6 +111,10 @@ struct Replayed {
     skipped: usize,
     /// Each row's scan, in the sensor frame, for the figure.
     scans: Vec<ros::LaserScan>,
+    /// Every route taken, in order (odometry frame).
+    plans: Vec<Vec<[f64; 2]>>,
+    /// The goal at the last scan: `--goal`, or the last route's end.
+    goal: [f64; 2],
 }
 
 /// Runs `dvnav replay`.
@@ -111,15 +131,26 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<ExitCode> {
         args.footprint.as_deref(),
         args.margin,
     )?;
-    let rec = bag::read(&args.bag, &args.scan_topic, &args.odom_topic)?;
+    let rec = bag::read(&args.bag, &args.scan_topic, &args.odom_topic, &args.plan_topic)?;
+    anyhow::ensure!(
+        args.goal.is_some() || !rec.plans.is_empty(),
+        "{}: no goal: give `--goal X,Y` (odometry frame), or record the robot's planner's \
+         nav_msgs/msg/Path on `--plan-topic` (now {})",
+        args.bag.display(),
+        args.plan_topic
+    );
     eprintln!(
-        "replay: {} scans on {}, {} odometry messages on {}, goal ({}, {}) in the odometry frame",
+        "replay: {} scans on {}, {} odometry messages on {}, {} paths on {}, {}",
         rec.scans.len(),
         args.scan_topic,
         rec.odometry.len(),
         args.odom_topic,
-        args.goal[0],
-        args.goal[1]
+        rec.plans.len(),
+        args.plan_topic,
+        match args.goal {
+            Some(g) => format!("goal ({}, {}) in the odometry frame", g[0], g[1]),
+            None => "the goal at each path's end".into(),
+        }
     );
     let out = replay(&ctl, rec, args.goal)?;
     anyhow::ensure!(
@@ -133,7 +164,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<ExitCode> {
     }
     if let Some(path) = &args.figure {
         let lidar = ctl.footprint("").robot.lidar;
-        let canvas = crate::render::replay::render(&figure(&out, &lidar, args.goal), 900)?;
+        let canvas = crate::render::replay::render(&figure(&out, &lidar), 900)?;
         std::fs::write(path, canvas.encode_png()?)
             .map_err(|e| anyhow::anyhow!("cannot write --figure {}: {e}", path.display()))?;
         eprintln!("replay: drew {}", path.display());
@@ -156,21 +187,43 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// The robot id routes are set for: replay drives one robot.
+const ROBOT: &str = "";
+
 fn replay(
     ctl: &dvnav_nav::dvst::DvstController,
     rec: bag::Recording,
-    goal: [f64; 2],
+    goal: Option<[f64; 2]>,
 ) -> anyhow::Result<Replayed> {
     let mut odom = rec.odometry.iter().peekable();
+    let mut plans = rec.plans.iter().peekable();
     // Without odometry the sensor stood still at the odometry frame's origin.
     let fixed = rec.odometry.is_empty().then(ros::Odometry::at_rest);
     let mut latest: Option<&ros::Odometry> = fixed.as_ref();
+    let odom_frame = rec.odometry.first().map(|(_, o)| o.header.frame_id.clone());
     let t0 = rec.scans[0].0;
-    let mut out = Replayed { rows: Vec::new(), skipped: 0, scans: Vec::new() };
+    let mut out = Replayed {
+        rows: Vec::new(),
+        skipped: 0,
+        scans: Vec::new(),
+        plans: Vec::new(),
+        goal: goal.unwrap_or_default(),
+    };
+    // The route's goal while the robot follows one; `--goal` before the first path.
+    let mut route_goal: Option<[f64; 2]> = None;
     for (k, (t, scan)) in rec.scans.into_iter().enumerate() {
         while let Some((_, o)) = odom.next_if(|(to, _)| *to <= t) {
             latest = Some(o);
         }
+        while let Some((tp, path)) = plans.next_if(|(tp, _)| *tp <= t) {
+            route_goal = take_route(ctl, *tp, path, odom_frame.as_deref(), &mut out.plans)?;
+        }
+        let Some(goal) = route_goal.or(goal) else {
+            // No path yet and no --goal: nothing to drive to.
+            out.skipped += 1;
+            continue;
+        };
+        out.goal = goal;
         let Some(o) = latest else {
             out.skipped += 1;
             continue;
@@ -188,8 +241,12 @@ fn replay(
             range_max: f64::from(scan.range_max),
             ranges: &scan.ranges,
         };
-        let input =
+        let mut input =
             RobotInput::new(Scan::Laser(laser), goal_distance, goal_angle, odom_v, odom_omega);
+        input.robot_id = ROBOT;
+        if route_goal.is_some() {
+            input.pose = Some(dvnav_sim::Pose2::new(x, y, yaw));
+        }
         let c = ctl.act(&input).map_err(|e| anyhow::anyhow!("scan {k} (log time {t} ns): {e}"))?;
         let nearest = scan
             .ranges
@@ -211,6 +268,9 @@ fn replay(
             v: c.v,
             omega: c.omega,
             arrived: c.arrived,
+            subgoal_x: c.route.map(|r| r.subgoal[0]),
+            subgoal_y: c.route.map(|r| r.subgoal[1]),
+            remaining_m: c.route.map(|r| r.remaining_m),
             goal_tolerance: c.goal_tolerance,
             filled_beams: c.filled_beams,
             nearest_m: nearest,
@@ -220,13 +280,49 @@ fn replay(
     Ok(out)
 }
 
-/// The figure of a replay: the path, every scan's returns in the odometry frame, the goal.
-fn figure(out: &Replayed, lidar: &SensorSetup, goal: [f64; 2]) -> ReplayFigure {
+/// The robot's planner sent `path` at log time `t` (ns): it becomes the robot's route, as
+/// `SetRoute` makes it; an empty path (a planner that failed) clears the route. Returns the
+/// route's goal.
+fn take_route(
+    ctl: &dvnav_nav::dvst::DvstController,
+    t: u64,
+    path: &ros::Path,
+    odom_frame: Option<&str>,
+    taken: &mut Vec<Vec<[f64; 2]>>,
+) -> anyhow::Result<Option<[f64; 2]>> {
+    let points = path.points();
+    if points.is_empty() {
+        ctl.clear_route(ROBOT).map_err(|e| anyhow::anyhow!("path at log time {t} ns: {e}"))?;
+        return Ok(None);
+    }
+    if let Some(frame) = odom_frame
+        && !path.header.frame_id.is_empty()
+        && path.header.frame_id != frame
+        && taken.is_empty()
+    {
+        eprintln!(
+            "replay: the paths are in frame `{}`, the odometry in `{frame}`; replay reads both \
+             as the odometry frame (it has no map -> odom transform)",
+            path.header.frame_id
+        );
+    }
+    let goal = *points.last().expect("not empty");
+    ctl.set_route(ROBOT, points.clone())
+        .map_err(|e| anyhow::anyhow!("path at log time {t} ns: {e}"))?;
+    taken.push(points);
+    Ok(Some(goal))
+}
+
+/// The figure of a replay: the path, every scan's returns in the odometry frame, the goal, and
+/// the routes and subgoals when the robot followed its planner's paths.
+fn figure(out: &Replayed, lidar: &SensorSetup) -> ReplayFigure {
     let arrived = out.rows.iter().find(|r| r.arrived);
     ReplayFigure {
+        plans: out.plans.clone(),
+        subgoals: out.rows.iter().filter_map(|r| Some([r.subgoal_x?, r.subgoal_y?])).collect(),
         path: out.rows.iter().map(|r| ([r.x, r.y], r.v)).collect(),
         returns: out.rows.iter().zip(&out.scans).flat_map(|(r, s)| returns(r, s, lidar)).collect(),
-        goal,
+        goal: out.goal,
         tolerance: out.rows[0].goal_tolerance,
         arrived: arrived.map(|r| (r.time_s, [r.x, r.y])),
         duration_s: out.rows.last().map_or(0.0, |r| r.time_s),

@@ -1,6 +1,6 @@
-//! The two ROS 2 messages `dvnav replay` reads, as their CDR encoding lays them out
-//! (`sensor_msgs/msg/LaserScan`, `nav_msgs/msg/Odometry`; field order and types of the ROS 2
-//! message definitions), decoded with the `cdr` crate.
+//! The ROS 2 messages `dvnav replay` reads, as their CDR encoding lays them out
+//! (`sensor_msgs/msg/LaserScan`, `nav_msgs/msg/Odometry`, `nav_msgs/msg/Path`; field order and
+//! types of the ROS 2 message definitions), decoded with the `cdr` crate.
 
 use serde::Deserialize;
 
@@ -95,6 +95,28 @@ pub struct Odometry {
     pub child_frame_id: String,
     pub pose: PoseWithCovariance,
     pub twist: TwistWithCovariance,
+}
+
+/// `geometry_msgs/msg/PoseStamped`, its `pose` (`position`, `orientation`) flattened.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+pub struct PoseStamped {
+    pub header: Header,
+    pub position: Vector3,
+    pub orientation: Quaternion,
+}
+
+/// `nav_msgs/msg/Path`: a planner's path (Nav2's `/plan`) in `header.frame_id`.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+pub struct Path {
+    pub header: Header,
+    pub poses: Vec<PoseStamped>,
+}
+
+impl Path {
+    /// The path's positions (m).
+    pub fn points(&self) -> Vec<[f64; 2]> {
+        self.poses.iter().map(|p| [p.position.x, p.position.y]).collect()
+    }
 }
 
 impl Odometry {
