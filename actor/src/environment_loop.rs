@@ -158,6 +158,15 @@ pub struct EnvironmentLoop<A: Adder, V: VariableSource> {
     counters: LoopCounters,
 }
 
+/// The `[env.robustness]` of episodes while the run is in `stage`: the configured one from
+/// `curriculum.robust_from_stage` on (every stage when unset), none before.
+fn stage_robustness(cfg: &Config, stage: u32) -> dvnav_sim::RobustnessConfig {
+    match cfg.curriculum.robust_from_stage {
+        Some(from) if stage < from => dvnav_sim::RobustnessConfig::default(),
+        _ => cfg.env.robustness.clone(),
+    }
+}
+
 impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
     /// A loop over `cfg.actor.envs` environments seeded from `seed`, in rooms of the first
     /// stage of the curriculum until the learner assigns another.
@@ -186,7 +195,9 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
             (0..n).map(|_| rooms.pick(&sets[0], &mut rng)).collect::<anyhow::Result<_>>()?;
         let seeds: Vec<u64> =
             (0..n as u64).map(|i| seed.wrapping_mul(7919).wrapping_add(i)).collect();
-        let envs = VecEnv::new(first, &cfg.env, &seeds);
+        let mut env_cfg = cfg.env.clone();
+        env_cfg.robustness = stage_robustness(&cfg, 0);
+        let envs = VecEnv::new(first, &env_cfg, &seeds);
         let d = cfg.obs_dim();
         let mut this = Self {
             actor_name,
@@ -320,6 +331,10 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
             if v.stage != self.stage {
                 tracing::info!(actor = %self.actor_name, stage = v.stage, room = %v.room, "switching stage");
                 self.stage = v.stage;
+                let robustness = stage_robustness(&self.cfg, self.stage);
+                for env in self.envs.envs_mut() {
+                    env.set_robustness(robustness.clone());
+                }
                 // A stage of one room is every environment's next room. A set draws each
                 // episode's room when the episode begins (below), so nothing is drawn here.
                 let set = RoomSet::parse(&v.room)?;

@@ -407,3 +407,51 @@ fn the_room_cache_keeps_at_most_its_capacity_and_never_drops_a_room_in_use() {
     assert!(Arc::ptr_eq(&cache.get("env0").unwrap()[0], &in_use[0]), "env0 was kept");
     assert!(!cache.rooms.contains_key("generated:clutter:0:density=0.02,size=3"), "oldest out");
 }
+
+/// `curriculum.robust_from_stage`: a run before that stage draws clean episodes, one at or
+/// past it draws the configured perturbations (here a fixed dropout, so every such episode's
+/// draw shows it), whatever the stage of the room an episode revisits.
+#[test]
+fn robustness_starts_at_its_stage() {
+    let episodes_at = |stage: u32| {
+        let mut cfg = Config::default();
+        cfg.actor.envs = 2;
+        cfg.env.max_steps = 15;
+        cfg.env.robustness.beam_dropout = 0.1;
+        cfg.curriculum.robust_from_stage = Some(2);
+        cfg.curriculum.earlier_share = 0.5;
+        let vars = Variables {
+            version: 3,
+            policy: Arc::new(policy_bytes(&cfg)),
+            stage,
+            room: cfg.curriculum.rooms[stage as usize].clone(),
+            warmup: true,
+            stop: false,
+        };
+        let mut el = EnvironmentLoop::new(
+            cfg,
+            "t".into(),
+            0,
+            7,
+            VecAdder::default(),
+            Fixed(Arc::new(vars)),
+            None,
+        )
+        .unwrap();
+        // Every environment finishes at least two episodes (timeouts at 15 steps at most).
+        let mut dropouts = Vec::new();
+        for _ in 0..40 {
+            assert!(el.step().unwrap());
+            dropouts.extend(el.envs.envs().iter().map(|e| e.perturbation().beam_dropout));
+        }
+        let first = el.envs.envs()[0].perturbation().beam_dropout;
+        (first, dropouts)
+    };
+    let (_, before) = episodes_at(1);
+    assert!(before.iter().all(|&d| d == 0.0), "{before:?}");
+    let (last, after) = episodes_at(2);
+    assert_eq!(last, 0.1, "episodes begun at stage 2 are perturbed");
+    // The first episodes began before the learner's stage arrived (clean); the later ones
+    // are perturbed, earlier rooms included (earlier_share = 0.5).
+    assert!(after.contains(&0.0) && after.contains(&0.1), "{after:?}");
+}

@@ -318,6 +318,18 @@ impl NavEnv {
         self.next_room = Some(room);
     }
 
+    /// Runs the next episodes with `robustness` in place of the configured `[env.robustness]`
+    /// (from the next reset on; the episode under way keeps its perturbations). The actors'
+    /// curriculum switches it per stage (`curriculum.robust_from_stage`).
+    pub fn set_robustness(&mut self, robustness: crate::RobustnessConfig) {
+        self.cfg.robustness = robustness;
+    }
+
+    /// The `[env.robustness]` the next episodes draw their perturbations from.
+    pub fn robustness(&self) -> &crate::RobustnessConfig {
+        &self.cfg.robustness
+    }
+
     fn take_next_room(&mut self) {
         if let Some(room) = self.next_room.take() {
             self.room = room;
