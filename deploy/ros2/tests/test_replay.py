@@ -8,16 +8,37 @@ import subprocess
 import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from conftest import REPO, TYPES, T, corridor_scan, header, odometry, quaternion
+from conftest import REPO, TYPES, T, corridor_scan, goal_pose, header, odometry, quaternion
 
 
-def write_bag(path, scans=40, scan_topic="/scan", odom_type="nav_msgs/msg/Odometry"):
+def write_bag(
+    path, scans=40, scan_topic="/scan", odom_type="nav_msgs/msg/Odometry",
+    storage=StoragePlugin.MCAP, goals=(), tf_static=(),
+):
     """10 Hz scans and 20 Hz odometry (the first odometry 0.12 s in) of a robot driving from
-    (0, 0) to (2, 0) at 0.5 m/s along a corridor 2 m wide."""
-    with Writer(path, version=8, storage_plugin=StoragePlugin.MCAP) as w:
+    (0, 0) to (2, 0) at 0.5 m/s along a corridor 2 m wide; `goals`: (log time s, x, y) sent on
+    /goal_pose."""
+    with Writer(path, version=8, storage_plugin=storage) as w:
         scan_c = w.add_connection(scan_topic, "sensor_msgs/msg/LaserScan", typestore=TYPES)
         odom_c = w.add_connection("/odom", odom_type, typestore=TYPES)
         events = []
+        if tf_static:
+            tf_c = w.add_connection("/tf_static", "tf2_msgs/msg/TFMessage", typestore=TYPES)
+            transforms = [
+                T["geometry_msgs/msg/TransformStamped"](
+                    header=header(0.0, parent),
+                    child_frame_id=child,
+                    transform=T["geometry_msgs/msg/Transform"](
+                        translation=T["geometry_msgs/msg/Vector3"](x=x, y=y, z=0.2),
+                        rotation=quaternion(yaw),
+                    ),
+                )
+                for parent, child, x, y, yaw in tf_static
+            ]
+            events.append((0.0, tf_c, T["tf2_msgs/msg/TFMessage"](transforms=transforms)))
+        if goals:
+            goal_c = w.add_connection("/goal_pose", "geometry_msgs/msg/PoseStamped", typestore=TYPES)
+            events += [(t, goal_c, goal_pose(x, y)) for t, x, y in goals]
         for k in range(scans):
             t = 0.1 * k
             x = min(0.5 * t, 2.0)
@@ -173,3 +194,92 @@ def test_a_bag_without_paths_needs_a_goal_and_a_map_frame_path_is_flagged(dvnav,
     mapped = write_bag_with_plans(tmp_path / "mapped", [(0.05, [(0.0, 0.0), (3.0, 0.0)])], "map", 8)
     r = replay(dvnav, mapped)
     assert "paths are in frame `map`, the odometry in `odom`" in r.stderr, r.stderr
+
+
+def test_a_sqlite_bag_replays_as_its_mcap_twin(dvnav, tmp_path):
+    """rosbag2's SQLite storage (.db3, the default before Iron): the directory or the file
+    itself gives the same commands as the same recording in MCAP."""
+    mcap = write_bag(tmp_path / "mcap", scans=20)
+    db3 = write_bag(tmp_path / "db3", scans=20, storage=StoragePlugin.SQLITE3)
+    files = sorted(db3.glob("*.db3"))
+    assert len(files) == 1 and not list(db3.glob("*.mcap"))
+    runs = []
+    for bag in (mcap, db3, files[0]):
+        out = tmp_path / f"{bag.name}.csv"
+        r = replay(dvnav, bag, "--goal", "2.0,0.0", "--out", str(out))
+        assert "20 scans on /scan" in r.stderr, r.stderr
+        runs.append(out.read_text())
+    assert runs[0] == runs[1] == runs[2]
+    assert len(runs[0].splitlines()) == 1 + 18
+    # A file that is not a bag at all is named as such.
+    junk = tmp_path / "junk.db3"
+    junk.write_bytes(b"not sqlite" * 100)
+    r = replay(dvnav, junk, "--goal", "1,0", check=False)
+    assert r.returncode != 0 and "not a readable rosbag2 SQLite file" in r.stderr, r.stderr
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    r = replay(dvnav, empty, "--goal", "1,0", check=False)
+    assert r.returncode != 0 and "without .mcap or .db3 files" in r.stderr, r.stderr
+
+
+def test_goals_on_the_goal_topic_replace_goal_from_their_log_time(dvnav, tmp_path):
+    """Nav2's and RViz's /goal_pose: the first goal (0.5 s) down the corridor, a second one
+    (1.5 s) back at the start; --goal is only the fallback before the first."""
+    bag = write_bag(tmp_path / "bag", scans=30, goals=[(0.5, 3.0, 0.0), (1.5, 0.0, 0.0)])
+    out = tmp_path / "c.csv"
+    r = replay(dvnav, bag, "--out", str(out))
+    assert "2 goals on /goal_pose" in r.stderr, r.stderr
+    rows = list(csv.DictReader(out.open()))
+    # Scans before the first goal (and before the first odometry) have nothing to drive to.
+    assert int(rows[0]["scan"]) == 5, rows[0]
+    for row in rows:
+        t, x = float(row["time_s"]), float(row["x"])
+        want = 3.0 if t < 1.5 - 1e-9 else 0.0
+        assert float(row["goal_x"]) == want and float(row["goal_y"]) == 0.0, row
+        assert float(row["goal_distance"]) == pytest.approx(abs(want - x), abs=1e-9), row
+    # With --goal, the scans before the first goal message drive to it.
+    r = replay(dvnav, bag, "--goal", "-1,0", "--out", str(out))
+    rows = list(csv.DictReader(out.open()))
+    assert int(rows[0]["scan"]) == 2 and float(rows[0]["goal_x"]) == -1.0, rows[0]
+    assert float(rows[-1]["goal_x"]) == 0.0
+    # No goal anywhere: the error names the goal topic too.
+    r = replay(dvnav, write_bag(tmp_path / "none", scans=5), check=False)
+    assert r.returncode != 0 and "--goal-topic" in r.stderr, r.stderr
+
+
+def test_the_sensor_mounting_comes_from_tf_static(dvnav, tmp_path):
+    """A LiDAR 0.1 m behind the axle, turned backwards (/tf_static also holds the base's own
+    frames; longer chains compose, see src/cli/replay/mount.rs): replay mounts it there, as a
+    footprint file with that [lidar] table would, and says so."""
+
+    def commands(text):
+        return [(float(r["v"]), float(r["omega"])) for r in csv.DictReader(text.splitlines())]
+
+    def same(a, b):
+        return len(a) == len(b) and all(abs(x - y) < 1e-6 for p, q in zip(a, b) for x, y in zip(p, q))
+
+    chain = [("base_footprint", "base_link", 0.0, 0.0, 0.0), ("base_link", "laser", -0.1, 0.0, math.pi)]
+    bag = write_bag(tmp_path / "bag", scans=15, tf_static=chain)
+    plain = write_bag(tmp_path / "plain", scans=15)
+    fp = tmp_path / "behind.toml"
+    fp.write_text(
+        'name = "meta behind"\n[lidar]\nx = -0.1\ny = 0.0\nyaw = 3.141592653589793\n'
+        '[[parts]]\nshape = "circle"\ncenter = [0.0, 0.0]\nradius = 0.2\n'
+    )
+    csvs = {}
+    for name, b, extra in [
+        ("tf", bag, []), ("file", plain, ["--footprint", str(fp)]), ("plain", plain, []),
+        ("ignored", bag, ["--ignore-tf-static"]), ("agrees", bag, ["--footprint", str(fp)]),
+    ]:
+        out = tmp_path / f"{name}.csv"
+        r = replay(dvnav, b, "--goal", "2,0", "--out", str(out), *extra)
+        csvs[name] = (out.read_text(), r.stderr)
+    tf_rows, said = csvs["tf"]
+    assert "/tf_static mounts `laser` at x = -0.100 m, y = 0.000 m, yaw = 180.0° in `base_link`" in said, said
+    assert "replaying with /tf_static's" in said
+    tf_cmds = commands(tf_rows)
+    assert same(tf_cmds, commands(csvs["file"][0])), "the footprint file's mounting commands"
+    assert not same(tf_cmds, commands(csvs["plain"][0])), "the mounting changes the commands"
+    assert csvs["ignored"][0] == csvs["plain"][0] and "replaying with the footprint's" in csvs["ignored"][1]
+    # The footprint file agrees with /tf_static: nothing to say.
+    assert same(commands(csvs["agrees"][0]), tf_cmds) and "/tf_static" not in csvs["agrees"][1], csvs["agrees"][1]

@@ -10,6 +10,7 @@
 //! controller picks the subgoal; the rows and the figure show the plans and the subgoals.
 
 mod bag;
+mod mount;
 mod ros;
 
 use crate::render::replay::ReplayFigure;
@@ -22,7 +23,8 @@ use std::process::ExitCode;
 /// `dvnav replay`.
 #[derive(Args, Debug)]
 pub struct ReplayArgs {
-    /// The bag: an MCAP file, or a rosbag2 directory of them (`ros2 bag record -s mcap`).
+    /// The bag: an MCAP file or a rosbag2 SQLite file (`.db3`), or a rosbag2 directory of
+    /// either (`ros2 bag record`).
     bag: PathBuf,
     /// Topic of the LiDAR's `sensor_msgs/msg/LaserScan`.
     #[arg(long, default_value = "/scan")]
@@ -30,8 +32,9 @@ pub struct ReplayArgs {
     /// Topic of the robot's `nav_msgs/msg/Odometry`.
     #[arg(long, default_value = "/odom")]
     odom_topic: String,
-    /// The goal `X,Y` (m) in the odometry frame. Not needed when the bag has the planner's
-    /// paths on `--plan-topic`: the route's last pose is the goal once the first path arrives.
+    /// The goal `X,Y` (m) in the odometry frame. Not needed when the bag has goals on
+    /// `--goal-topic` or the planner's paths on `--plan-topic`: those replace it from their
+    /// log time on.
     #[arg(long, value_parser = parse_goal, allow_hyphen_values = true)]
     goal: Option<[f64; 2]>,
     /// Topic of the robot's planner's `nav_msgs/msg/Path` (Nav2's `/plan`), in the odometry
@@ -39,10 +42,19 @@ pub struct ReplayArgs {
     /// subgoal on it. A bag without this topic is replayed towards `--goal`.
     #[arg(long, default_value = "/plan")]
     plan_topic: String,
+    /// Topic of the goals sent to the robot, `geometry_msgs/msg/PoseStamped` (Nav2's and
+    /// RViz's `/goal_pose`), in the odometry frame: each is the goal from its log time on
+    /// (a route from `--plan-topic` goes first while there is one).
+    #[arg(long, default_value = "/goal_pose")]
+    goal_topic: String,
     /// The robot's footprint file (see `footprints/`; its `[lidar]` table places the sensor).
     /// Default: the meta robot itself, its LiDAR on the axle centre.
     #[arg(long)]
     footprint: Option<PathBuf>,
+    /// Keep the footprint file's `[lidar]` mounting even when the bag's `/tf_static` places
+    /// the scan's frame elsewhere on the robot (by default /tf_static's wins, with a warning).
+    #[arg(long)]
+    ignore_tf_static: bool,
     /// The meta agent: a model directory, a checkpoint directory or a `policy.safetensors`.
     #[arg(long, default_value = "models/meta-r0.2")]
     checkpoint: PathBuf,
@@ -79,6 +91,10 @@ pub struct CommandRow {
     pub x: f64,
     pub y: f64,
     pub yaw: f64,
+    /// The goal at this scan (odometry frame, m): the route's end, the latest goal message, or
+    /// `--goal`.
+    pub goal_x: f64,
+    pub goal_y: f64,
     /// The goal as the controller sees it: distance (m) and bearing (rad, robot frame).
     pub goal_distance: f64,
     pub goal_angle: f64,
@@ -125,31 +141,49 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<ExitCode> {
             .map_err(|e| anyhow::anyhow!("{}: cannot read the footprint file: {e}", f.display()))?,
         None => String::new(),
     };
-    let ctl = super::serve::controller_for(
-        &args.checkpoint,
-        &footprint_text,
-        args.footprint.as_deref(),
-        args.margin,
-    )?;
-    let rec = bag::read(&args.bag, &args.scan_topic, &args.odom_topic, &args.plan_topic)?;
+    let topics = bag::Topics {
+        scan: &args.scan_topic,
+        odom: &args.odom_topic,
+        plan: &args.plan_topic,
+        goal: &args.goal_topic,
+        tf_static: "/tf_static",
+    };
+    let rec = bag::read(&args.bag, &topics)?;
+    let controller = |lidar| {
+        super::serve::controller_for(
+            &args.checkpoint,
+            &footprint_text,
+            args.footprint.as_deref(),
+            args.margin,
+            lidar,
+        )
+    };
+    let mut ctl = controller(None)?;
+    if let Some(mount) = tf_static_mount(&rec, &ctl, &args)? {
+        ctl = controller(Some(mount))?;
+    }
     anyhow::ensure!(
-        args.goal.is_some() || !rec.plans.is_empty(),
-        "{}: no goal: give `--goal X,Y` (odometry frame), or record the robot's planner's \
-         nav_msgs/msg/Path on `--plan-topic` (now {})",
+        args.goal.is_some() || !rec.plans.is_empty() || !rec.goals.is_empty(),
+        "{}: no goal: give `--goal X,Y` (odometry frame), or record the goals sent to the robot \
+         (geometry_msgs/msg/PoseStamped on `--goal-topic`, now {}) or its planner's \
+         nav_msgs/msg/Path (on `--plan-topic`, now {})",
         args.bag.display(),
+        args.goal_topic,
         args.plan_topic
     );
     eprintln!(
-        "replay: {} scans on {}, {} odometry messages on {}, {} paths on {}, {}",
+        "replay: {} scans on {}, {} odometry messages on {}, {} paths on {}, {} goals on {}, {}",
         rec.scans.len(),
         args.scan_topic,
         rec.odometry.len(),
         args.odom_topic,
         rec.plans.len(),
         args.plan_topic,
+        rec.goals.len(),
+        args.goal_topic,
         match args.goal {
-            Some(g) => format!("goal ({}, {}) in the odometry frame", g[0], g[1]),
-            None => "the goal at each path's end".into(),
+            Some(g) => format!("goal ({}, {}) in the odometry frame until one arrives", g[0], g[1]),
+            None => "the goal at each path's end or from each goal message".into(),
         }
     );
     let out = replay(&ctl, rec, args.goal)?;
@@ -187,6 +221,55 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// The sensor's mounting from the bag's `/tf_static` when it differs from the footprint file's
+/// (said on stderr either way it is decided), unless `--ignore-tf-static`.
+fn tf_static_mount(
+    rec: &bag::Recording,
+    ctl: &dvnav_nav::dvst::DvstController,
+    args: &ReplayArgs,
+) -> anyhow::Result<Option<[f64; 3]>> {
+    if rec.tf_static.is_empty() {
+        return Ok(None);
+    }
+    let sensor = &rec.scans[0].1.header.frame_id;
+    let base =
+        rec.odometry.first().map(|(_, o)| o.child_frame_id.as_str()).filter(|f| !f.is_empty());
+    let Some((base, tf)) = mount::sensor_mount(&rec.tf_static, sensor, base) else {
+        eprintln!(
+            "replay: /tf_static has no chain of transforms from the scan's frame `{sensor}` to \
+             the robot's `{}`; the sensor sits where the footprint's [lidar] table says",
+            base.unwrap_or("base frame")
+        );
+        return Ok(None);
+    };
+    let lidar = ctl.footprint(ROBOT).robot.lidar;
+    let file = mount::Mount { x: lidar.x, y: lidar.y, yaw: lidar.yaw };
+    if !tf.differs_from(&file) {
+        return Ok(None);
+    }
+    let source = args
+        .footprint
+        .as_ref()
+        .map_or("the meta robot (no --footprint)".to_string(), |f| f.display().to_string());
+    let (chosen, how) = if args.ignore_tf_static {
+        ("the footprint's", "--ignore-tf-static")
+    } else {
+        ("/tf_static's", "set the footprint's [lidar] table to it, or --ignore-tf-static")
+    };
+    eprintln!(
+        "replay: /tf_static mounts `{sensor}` at x = {:.3} m, y = {:.3} m, yaw = {:.1}° in \
+         `{base}`; {source} says x = {:.3} m, y = {:.3} m, yaw = {:.1}°; replaying with \
+         {chosen} ({how})",
+        tf.x,
+        tf.y,
+        tf.yaw.to_degrees(),
+        file.x,
+        file.y,
+        file.yaw.to_degrees()
+    );
+    Ok((!args.ignore_tf_static).then_some([tf.x, tf.y, tf.yaw]))
+}
+
 /// The robot id routes are set for: replay drives one robot.
 const ROBOT: &str = "";
 
@@ -197,6 +280,7 @@ fn replay(
 ) -> anyhow::Result<Replayed> {
     let mut odom = rec.odometry.iter().peekable();
     let mut plans = rec.plans.iter().peekable();
+    let mut goals = rec.goals.iter().peekable();
     // Without odometry the sensor stood still at the odometry frame's origin.
     let fixed = rec.odometry.is_empty().then(ros::Odometry::at_rest);
     let mut latest: Option<&ros::Odometry> = fixed.as_ref();
@@ -209,8 +293,9 @@ fn replay(
         plans: Vec::new(),
         goal: goal.unwrap_or_default(),
     };
-    // The route's goal while the robot follows one; `--goal` before the first path.
+    // The route's goal while the robot follows one, else the latest goal message, else `--goal`.
     let mut route_goal: Option<[f64; 2]> = None;
+    let mut topic_goal: Option<[f64; 2]> = None;
     for (k, (t, scan)) in rec.scans.into_iter().enumerate() {
         while let Some((_, o)) = odom.next_if(|(to, _)| *to <= t) {
             latest = Some(o);
@@ -218,8 +303,14 @@ fn replay(
         while let Some((tp, path)) = plans.next_if(|(tp, _)| *tp <= t) {
             route_goal = take_route(ctl, *tp, path, odom_frame.as_deref(), &mut out.plans)?;
         }
-        let Some(goal) = route_goal.or(goal) else {
-            // No path yet and no --goal: nothing to drive to.
+        while let Some((_, g)) = goals.next_if(|(tg, _)| *tg <= t) {
+            if topic_goal.is_none() {
+                warn_frame("goals", &g.header.frame_id, odom_frame.as_deref());
+            }
+            topic_goal = Some([g.position.x, g.position.y]);
+        }
+        let Some(goal) = route_goal.or(topic_goal).or(goal) else {
+            // No path or goal yet and no --goal: nothing to drive to.
             out.skipped += 1;
             continue;
         };
@@ -261,6 +352,8 @@ fn replay(
             x,
             y,
             yaw,
+            goal_x: goal[0],
+            goal_y: goal[1],
             goal_distance,
             goal_angle: (goal_angle.sin()).atan2(goal_angle.cos()),
             odom_v,
@@ -295,22 +388,28 @@ fn take_route(
         ctl.clear_route(ROBOT).map_err(|e| anyhow::anyhow!("path at log time {t} ns: {e}"))?;
         return Ok(None);
     }
-    if let Some(frame) = odom_frame
-        && !path.header.frame_id.is_empty()
-        && path.header.frame_id != frame
-        && taken.is_empty()
-    {
-        eprintln!(
-            "replay: the paths are in frame `{}`, the odometry in `{frame}`; replay reads both \
-             as the odometry frame (it has no map -> odom transform)",
-            path.header.frame_id
-        );
+    if taken.is_empty() {
+        warn_frame("paths", &path.header.frame_id, odom_frame);
     }
     let goal = *points.last().expect("not empty");
     ctl.set_route(ROBOT, points.clone())
         .map_err(|e| anyhow::anyhow!("path at log time {t} ns: {e}"))?;
     taken.push(points);
     Ok(Some(goal))
+}
+
+/// Says once that `what` (paths, goals) come in another frame than the odometry: replay has no
+/// map -> odom transform and reads them as the odometry frame.
+fn warn_frame(what: &str, frame: &str, odom_frame: Option<&str>) {
+    if let Some(odom) = odom_frame
+        && !frame.is_empty()
+        && frame != odom
+    {
+        eprintln!(
+            "replay: the {what} are in frame `{frame}`, the odometry in `{odom}`; replay reads \
+             both as the odometry frame (it has no map -> odom transform)"
+        );
+    }
 }
 
 /// The figure of a replay: the path, every scan's returns in the odometry frame, the goal, and

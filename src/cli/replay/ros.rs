@@ -1,5 +1,6 @@
 //! The ROS 2 messages `dvnav replay` reads, as their CDR encoding lays them out
-//! (`sensor_msgs/msg/LaserScan`, `nav_msgs/msg/Odometry`, `nav_msgs/msg/Path`; field order and
+//! (`sensor_msgs/msg/LaserScan`, `nav_msgs/msg/Odometry`, `nav_msgs/msg/Path`,
+//! `geometry_msgs/msg/PoseStamped`, `tf2_msgs/msg/TFMessage`; field order and
 //! types of the ROS 2 message definitions), decoded with the `cdr` crate.
 
 use serde::Deserialize;
@@ -117,6 +118,22 @@ impl Path {
     pub fn points(&self) -> Vec<[f64; 2]> {
         self.poses.iter().map(|p| [p.position.x, p.position.y]).collect()
     }
+}
+
+/// `geometry_msgs/msg/TransformStamped`, its `transform` (`translation`, `rotation`)
+/// flattened: `child_frame_id`'s pose in `header.frame_id`.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+pub struct TransformStamped {
+    pub header: Header,
+    pub child_frame_id: String,
+    pub translation: Vector3,
+    pub rotation: Quaternion,
+}
+
+/// `tf2_msgs/msg/TFMessage` (`/tf_static`: the robot's fixed frames, the sensor's mounting).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+pub struct TfMessage {
+    pub transforms: Vec<TransformStamped>,
 }
 
 impl Odometry {

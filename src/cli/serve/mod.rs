@@ -139,26 +139,33 @@ pub fn load_controller(
     let text = std::fs::read_to_string(footprint).map_err(|e| {
         anyhow::anyhow!("{}: cannot read the footprint file: {e}", footprint.display())
     })?;
-    controller_for(checkpoint, &text, Some(footprint), margin)
+    controller_for(checkpoint, &text, Some(footprint), margin, None)
 }
 
 /// The meta agent of `checkpoint` driving the robot of the footprint file text
 /// `footprint_toml` (read from `source`); `None` drives the meta robot itself (a model trained
-/// as a circle).
+/// as a circle). `lidar`, when given, is the sensor's mounting `[x, y, yaw]` in place of the
+/// file's `[lidar]` position (its other keys kept).
 pub(super) fn controller_for(
     checkpoint: &Path,
     footprint_toml: &str,
     source: Option<&Path>,
     margin: Option<f64>,
+    lidar: Option<[f64; 3]>,
 ) -> anyhow::Result<DvstController> {
     let file = dvnav_nav::policy::read_policy(checkpoint)?;
     let agent = MetaAgent::from_policy_file(&file)?;
     let model = model_id(&file)?;
     let cfg = file.config;
+    let mounted = |text: &str| match lidar {
+        Some(mount) => with_lidar_mount(text, mount),
+        None => Ok(text.to_string()),
+    };
     match source {
         Some(path) => {
             let source = path.display().to_string();
-            DvstController::new(agent, &cfg, model, footprint_toml, &source, margin)
+            let text = mounted(footprint_toml)?;
+            DvstController::new(agent, &cfg, model, &text, &source, margin)
         }
         None => {
             anyhow::ensure!(
@@ -169,9 +176,25 @@ pub(super) fn controller_for(
                 "name = \"meta robot\"\n[[parts]]\nshape = \"circle\"\ncenter = [0.0, 0.0]\nradius = {}\n",
                 cfg.env.robot_radius
             );
+            let meta = mounted(&meta)?;
             DvstController::new(agent, &cfg, model, &meta, "the meta robot", margin)
         }
     }
+}
+
+/// The footprint file `text` with its `[lidar]` table's `x`, `y`, `yaw` set to `mount` (the
+/// table made if missing). The file was read once as it is, so its errors name its own lines.
+fn with_lidar_mount(text: &str, [x, y, yaw]: [f64; 3]) -> anyhow::Result<String> {
+    let mut doc: toml::Table =
+        toml::from_str(text).map_err(|e| anyhow::anyhow!("the footprint file: {e}"))?;
+    let lidar = doc.entry("lidar").or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    let toml::Value::Table(lidar) = lidar else {
+        anyhow::bail!("the footprint file: `lidar` must be a table");
+    };
+    for (key, v) in [("x", x), ("y", y), ("yaw", yaw)] {
+        lidar.insert(key.to_string(), toml::Value::Float(v));
+    }
+    toml::to_string(&doc).map_err(|e| anyhow::anyhow!("the footprint file: {e}"))
 }
 
 /// The model's name (its directory) and version: FNV-1a 64 of its weights, so two servers (or
