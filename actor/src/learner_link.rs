@@ -280,15 +280,26 @@ pub async fn register(client: &mut Client, name: &str, tls: bool) -> anyhow::Res
     })
 }
 
-/// Follows the variables stream into `tx` until it ends.
+/// Follows the variables stream into `tx` until it ends. The learner keeps one stream per
+/// actor: after a reconnection it may still hold the old one open (until its keepalive
+/// notices a vanished connection) and refuse the new one as RESOURCE_EXHAUSTED; that is
+/// retried, with backoff, for as long as this task runs.
 pub async fn follow_variables(
     mut client: Client,
     actor_id: u32,
     tx: watch::Sender<Option<Arc<Variables>>>,
 ) -> Option<String> {
-    let mut stream = match client.variables(pb::VariablesRequest { actor_id }).await {
-        Ok(r) => r.into_inner(),
-        Err(s) => return Some(format!("{:?}: {}", s.code(), s.message())),
+    let mut backoff = Duration::from_millis(100);
+    let mut stream = loop {
+        match client.variables(pb::VariablesRequest { actor_id }).await {
+            Ok(r) => break r.into_inner(),
+            Err(s) if s.code() == tonic::Code::ResourceExhausted => {
+                tracing::debug!(actor_id, error = %s.message(), "variables stream refused; retrying");
+                tokio::time::sleep(backoff).await;
+                backoff = (backoff * 2).min(Duration::from_secs(2));
+            }
+            Err(s) => return Some(format!("{:?}: {}", s.code(), s.message())),
+        }
     };
     loop {
         match stream.message().await {

@@ -25,7 +25,9 @@ impl From<LearnerError> for Status {
             LearnerError::SequenceGap { .. } => Status::failed_precondition(msg),
             LearnerError::Malformed(_) => Status::invalid_argument(msg),
             LearnerError::InvalidRequest(_) => Status::invalid_argument(msg),
-            LearnerError::TooManyActors(_) => Status::resource_exhausted(msg),
+            LearnerError::TooManyActors(_) | LearnerError::VariablesStreamOpen(_) => {
+                Status::resource_exhausted(msg)
+            }
             LearnerError::ShuttingDown => Status::unavailable(msg),
         }
     }
@@ -266,7 +268,11 @@ impl Learner for LearnerService {
         req: Request<pb::VariablesRequest>,
     ) -> Result<Response<Self::VariablesStream>, Status> {
         self.authorize(&req)?;
+        let actor_id = req.get_ref().actor_id;
+        // One open stream per registered actor: what idle readers can pin stays bounded.
+        self.state.open_variables_stream(actor_id)?;
         let mut rx = self.state.variables().subscribe();
+        let state = self.state.clone();
         let shutdown = self.state.shutdown_signal();
         // Bounded: a slow actor holds at most one message in flight; `watch` coalesces the rest.
         let (tx, out) = mpsc::channel(1);
@@ -279,8 +285,11 @@ impl Learner for LearnerService {
                 tokio::select! {
                     changed = rx.changed() => if changed.is_err() { break },
                     () = shutdown.cancelled() => break,
+                    // The reader went away: free the actor's stream now, not at the next version.
+                    () = tx.closed() => break,
                 }
             }
+            state.close_variables_stream(actor_id);
         });
         Ok(Response::new(Box::pin(ReceiverStream::new(out))))
     }

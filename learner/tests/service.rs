@@ -89,6 +89,48 @@ async fn variables_stream_delivers_weights_and_ends_at_shutdown() {
     s.shutdown().await;
 }
 
+/// Issue 27's bound on idle readers: a client that opens Variables streams and never reads
+/// them pinned a weight message each (32 streams, 59.5 MiB). One stream per registered actor:
+/// a second is refused with RESOURCE_EXHAUSTED, an unknown actor id with INVALID_ARGUMENT, the
+/// field named and each counted; the actor's stream opens again once the first is dropped.
+#[tokio::test]
+async fn one_variables_stream_per_actor_bounds_what_idle_readers_pin() {
+    let s = start(None).await;
+    let mut c = s.client().await;
+    let id = c.register(register("a", PROTOCOL_VERSION)).await.unwrap().into_inner().actor_id;
+    let idle = c.variables(VariablesRequest { actor_id: id }).await.unwrap().into_inner();
+    for _ in 0..31 {
+        let err = c.variables(VariablesRequest { actor_id: id }).await.unwrap_err();
+        assert_eq!(err.code(), Code::ResourceExhausted, "{err}");
+        assert!(err.message().contains(&format!("actor id {id} already has a Variables stream")));
+    }
+    let err = c.variables(VariablesRequest { actor_id: id + 100 }).await.unwrap_err();
+    assert_eq!(err.code(), Code::InvalidArgument, "{err}");
+    assert!(err.message().contains(&format!("unknown actor id {}", id + 100)), "{err}");
+    let st = s.state.status();
+    assert_eq!(st.rejected_by_reason.get("variables_stream_open"), Some(&31));
+    assert_eq!(st.rejected_by_reason.get("unknown_actor"), Some(&1));
+    // The reader goes away (the client drops the stream): the server frees the actor's slot
+    // when it sees the stream reset, without waiting for a new weight version.
+    drop(idle);
+    let mut again = None;
+    for _ in 0..200 {
+        match c.variables(VariablesRequest { actor_id: id }).await {
+            Ok(r) => {
+                again = Some(r.into_inner());
+                break;
+            }
+            Err(e) => {
+                assert_eq!(e.code(), Code::ResourceExhausted, "{e}");
+                tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+            }
+        }
+    }
+    let mut again = again.expect("the actor's stream opens again within 2 s of the drop");
+    assert_eq!(again.message().await.unwrap().unwrap().version, 1);
+    s.shutdown().await;
+}
+
 /// Random and damaged batches thrown at the real service: each is refused with
 /// INVALID_ARGUMENT (or accepted when it happens to be valid), the learner keeps serving, and
 /// nothing malformed reaches the replay buffer.

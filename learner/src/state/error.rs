@@ -24,6 +24,12 @@ pub enum LearnerError {
     /// A batch from an actor id that never registered.
     #[error("unknown actor id {0}; register first")]
     UnknownActor(u32),
+    /// A second `Variables` stream of an actor whose first is still open.
+    #[error(
+        "actor id {0} already has a Variables stream open (one per actor; it closes when its \
+         reader goes away)"
+    )]
+    VariablesStreamOpen(u32),
     /// A `Transitions` stream without a session credential.
     #[error("no session credential (metadata `x-dvnav-session`); register first")]
     NoSession,
@@ -70,6 +76,7 @@ impl LearnerError {
             LearnerError::Unauthenticated => "unauthenticated",
             LearnerError::ActorToken(_) => "actor_token",
             LearnerError::UnknownActor(_) => "unknown_actor",
+            LearnerError::VariablesStreamOpen(_) => "variables_stream_open",
             LearnerError::NoSession => "session_missing",
             LearnerError::UnknownSession => "session_unknown",
             LearnerError::WrongActor { .. } => "actor_mismatch",

@@ -65,6 +65,8 @@ struct Counters {
     write_failures: BTreeMap<String, u64>,
     last_write_error: Option<String>,
     trainer_last_error: Option<String>,
+    /// Actors with a `Variables` stream open (at most one each).
+    variables_streams: std::collections::BTreeSet<u32>,
 }
 
 /// The learner's shared state (see the module docs).
@@ -126,6 +128,7 @@ impl LearnerState {
                 write_failures: BTreeMap::new(),
                 last_write_error: None,
                 trainer_last_error: None,
+                variables_streams: Default::default(),
             }),
             config_toml: cfg.to_toml_string(),
             episode_bounds: EpisodeBounds::new(&cfg.env, cfg.curriculum.rooms.len()),
@@ -298,6 +301,37 @@ impl LearnerState {
         let actor_seed =
             self.cfg.run.seed.wrapping_mul(1_000_003).wrapping_add(actor_id as u64 + 1);
         Ok(Registration { actor_id, actor_seed, next_sequence, session })
+    }
+
+    /// Opens registered actor `actor_id`'s `Variables` stream. An actor has at most one open:
+    /// a weight message a reader has not taken stays buffered in its HTTP/2 stream (about
+    /// twice the policy's size) until the reader reads or goes away, so one stream per
+    /// registered name (`learner.max_actor_names` of them) bounds what idle readers can pin,
+    /// however many streams a client opens. An unknown id, and a second stream while the
+    /// first is open, are refused and counted; an actor that reconnects gets its stream once
+    /// the server has seen the old one go (at once for a closed connection, within the
+    /// keepalive timeout for a vanished one). Call [`Self::close_variables_stream`] when it ends.
+    pub fn open_variables_stream(&self, actor_id: u32) -> Result<(), LearnerError> {
+        let mut c = self.counters.lock().expect("counters lock");
+        let refused = if !c.actors.contains_key(&actor_id) {
+            LearnerError::UnknownActor(actor_id)
+        } else if !c.variables_streams.insert(actor_id) {
+            LearnerError::VariablesStreamOpen(actor_id)
+        } else {
+            return Ok(());
+        };
+        *c.rejected_by_reason.entry(refused.reason().to_string()).or_default() += 1;
+        if let Some(a) = c.actors.get_mut(&actor_id) {
+            a.last_error = Some(refused.to_string());
+        }
+        drop(c);
+        tracing::warn!(actor_id, error = %refused, "refused a variables stream");
+        Err(refused)
+    }
+
+    /// Actor `actor_id`'s `Variables` stream ended: it may open another.
+    pub fn close_variables_stream(&self, actor_id: u32) {
+        self.counters.lock().expect("counters lock").variables_streams.remove(&actor_id);
     }
 
     /// Counts a refused request or batch under `reason`, and remembers `error` as the actor's
