@@ -59,6 +59,10 @@ pub struct TrainArgs {
     /// rest of the step budget.
     #[arg(long)]
     pub stop_when_skilled: bool,
+    /// Train on past the skill milestone (clears curriculum.stop_when_skilled): with
+    /// `--resume`, continues a run that stopped once skilled, which would otherwise end at once.
+    #[arg(long, conflicts_with = "stop_when_skilled")]
+    pub no_stop_when_skilled: bool,
     /// Run directory (must not hold another run). Default: runs/run-UNIXTIME.
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -107,7 +111,21 @@ pub(super) fn run_one(args: TrainArgs) -> anyhow::Result<ExitCode> {
     if args.stop_when_skilled {
         cfg.curriculum.stop_when_skilled = true;
     }
+    if args.no_stop_when_skilled {
+        cfg.curriculum.stop_when_skilled = false;
+    }
     cfg.validate()?;
+    if let Some(dir) = &args.resume {
+        let summary = std::fs::read(dir.join("run_summary.json"))
+            .ok()
+            .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok());
+        anyhow::ensure!(
+            !resume_stops_at_once(&cfg, summary.as_ref()),
+            "{} stopped once skilled (curriculum.stop_when_skilled in its config.toml): resumed \
+             as it is, it would stop again at once; add --no-stop-when-skilled to train on",
+            dir.display()
+        );
+    }
     let out = args.resume.clone().or_else(|| args.out.clone()).unwrap_or_else(default_out);
     if args.resume.is_some() {
         anyhow::ensure!(
@@ -351,10 +369,38 @@ fn progress_line(s: &dvnav_proto::StatusReply) -> String {
     )
 }
 
+/// Whether resuming a run whose last `run_summary.json` is `summary` would end as soon as it
+/// starts: it reached the skill milestone and `curriculum.stop_when_skilled` is still set.
+fn resume_stops_at_once(cfg: &Config, summary: Option<&serde_json::Value>) -> bool {
+    cfg.curriculum.stop_when_skilled && summary.is_some_and(|s| !s["skilled"].is_null())
+}
+
 pub(super) fn default_out() -> PathBuf {
     let secs = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_secs())
         .unwrap_or(0);
     PathBuf::from("runs").join(format!("run-{secs}"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_a_skilled_run_that_still_stops_when_skilled_would_end_at_once() {
+        let skilled =
+            serde_json::json!({"skilled": {"stage": 4, "env_steps": 128768, "updates": 31161}});
+        let unskilled = serde_json::json!({"skilled": null});
+        let mut cfg = Config::default();
+        cfg.curriculum.stop_when_skilled = true;
+        assert!(resume_stops_at_once(&cfg, Some(&skilled)));
+        assert!(!resume_stops_at_once(&cfg, Some(&unskilled)));
+        // A run stopped by Ctrl-C or a timeout before any summary, or an older summary.
+        assert!(!resume_stops_at_once(&cfg, None));
+        assert!(!resume_stops_at_once(&cfg, Some(&serde_json::json!({}))));
+        // --no-stop-when-skilled cleared the key.
+        cfg.curriculum.stop_when_skilled = false;
+        assert!(!resume_stops_at_once(&cfg, Some(&skilled)));
+    }
 }
