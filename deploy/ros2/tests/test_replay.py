@@ -5,6 +5,8 @@ import csv
 import math
 import subprocess
 
+import numpy as np
+
 import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
 
@@ -283,3 +285,56 @@ def test_the_sensor_mounting_comes_from_tf_static(dvnav, tmp_path):
     assert csvs["ignored"][0] == csvs["plain"][0] and "replaying with the footprint's" in csvs["ignored"][1]
     # The footprint file agrees with /tf_static: nothing to say.
     assert same(commands(csvs["agrees"][0]), tf_cmds) and "/tf_static" not in csvs["agrees"][1], csvs["agrees"][1]
+
+
+def test_a_360_lidar_behind_turned_backwards_with_zero_for_no_return(dvnav, tmp_path):
+    """Issue 27's log: a 360° LiDAR 0.09 m behind the axle, turned backwards, reporting 0.0 for
+    no return (as RPLIDAR drivers do), mounted through /tf_static, on a robot driving down a
+    corridor. The robot is sent ahead, then (at 2 s) behind itself. Synthesized here, not a
+    real robot's log: the commands point toward the goal on >= 90 % of cycles and mean |dω|
+    is <= 0.1 rad/s per cycle (measured: 100 %, 0.019 rad/s)."""
+    with Writer(tmp_path / "bag", version=8, storage_plugin=StoragePlugin.MCAP) as w:
+        scan_c = w.add_connection("/scan", "sensor_msgs/msg/LaserScan", typestore=TYPES)
+        odom_c = w.add_connection("/odom", "nav_msgs/msg/Odometry", typestore=TYPES)
+        goal_c = w.add_connection("/goal_pose", "geometry_msgs/msg/PoseStamped", typestore=TYPES)
+        tf_c = w.add_connection("/tf_static", "tf2_msgs/msg/TFMessage", typestore=TYPES)
+        mount = T["geometry_msgs/msg/TransformStamped"](
+            header=header(0.0, "base_link"),
+            child_frame_id="laser",
+            transform=T["geometry_msgs/msg/Transform"](
+                translation=T["geometry_msgs/msg/Vector3"](x=-0.09, y=0.0, z=0.2),
+                rotation=quaternion(math.pi),
+            ),
+        )
+        events = [
+            (0.0, tf_c, T["tf2_msgs/msg/TFMessage"](transforms=[mount])),
+            (0.0, goal_c, goal_pose(4.0, 0.4)),
+            (2.0, goal_c, goal_pose(-3.0, 0.0)),
+        ]
+        for k in range(40):
+            t = 0.1 * k
+            scan = corridor_scan(t, y=0.0, yaw=math.pi, n=720, fov_deg=360.0)
+            scan.ranges[~np.isfinite(scan.ranges)] = 0.0
+            events.append((t + 0.001, scan_c, scan))
+        for k in range(80):
+            t = 0.05 * k
+            events.append((t, odom_c, odometry(t, min(0.25 * t, 0.5), 0.0, 0.0, v=0.25 if t < 2 else 0.0)))
+        for t, c, msg in sorted(events, key=lambda e: e[0]):
+            w.write(c, int(1e9 + t * 1e9), TYPES.serialize_cdr(msg, msg.__msgtype__))
+    out = tmp_path / "c.csv"
+    r = replay(dvnav, tmp_path / "bag", "--out", str(out))
+    assert "/tf_static mounts `laser` at x = -0.090 m" in r.stderr, r.stderr
+    rows = [row for row in csv.DictReader(out.open()) if row["arrived"] == "false"]
+    assert len(rows) >= 35, len(rows)
+
+    def toward(row):
+        v, w, a = float(row["v"]), float(row["omega"]), float(row["goal_angle"])
+        if abs(a) > math.radians(150):
+            return abs(w) > 0.3  # right behind: turning either way is toward it
+        return (v > 0.05 and math.cos(a) > 0) or w * a > 0
+
+    share = sum(map(toward, rows)) / len(rows)
+    omegas = [float(row["omega"]) for row in rows]
+    mean_dw = sum(abs(b - a) for a, b in zip(omegas, omegas[1:])) / (len(omegas) - 1)
+    print(f"toward the goal on {100 * share:.1f} % of {len(rows)} cycles, mean |dω| {mean_dw:.3f} rad/s")
+    assert share >= 0.9 and mean_dw <= 0.1, (share, mean_dw, [(r["v"], r["omega"], r["goal_angle"]) for r in rows])
