@@ -67,6 +67,27 @@ fn policy_bytes(cfg: &Config) -> Vec<u8> {
     varmap_to_safetensors(&vm).unwrap()
 }
 
+/// A loop over `cfg`'s environments whose learner always says `version`, `stage` and
+/// `warmup` (no network).
+fn fixed_loop(
+    cfg: Config,
+    version: u64,
+    stage: u32,
+    warmup: bool,
+    seed: u64,
+) -> EnvironmentLoop<VecAdder, Fixed> {
+    let vars = Variables {
+        version,
+        policy: Arc::new(policy_bytes(&cfg)),
+        stage,
+        room: cfg.curriculum.rooms[stage as usize].clone(),
+        warmup,
+        stop: false,
+    };
+    EnvironmentLoop::new(cfg, "t".into(), 0, seed, VecAdder::default(), Fixed(Arc::new(vars)), None)
+        .unwrap()
+}
+
 fn run(warmup: bool, steps: usize, seed: u64) -> (TransitionBatch, LoopCounters) {
     run_at(warmup, steps, seed, 0, 0.0)
 }
@@ -82,24 +103,7 @@ fn run_at(
     cfg.actor.envs = 3;
     cfg.env.max_steps = 60;
     cfg.curriculum.earlier_share = earlier_share;
-    let vars = Variables {
-        version: 3,
-        policy: Arc::new(policy_bytes(&cfg)),
-        stage,
-        room: cfg.curriculum.rooms[stage as usize].clone(),
-        warmup,
-        stop: false,
-    };
-    let mut el = EnvironmentLoop::new(
-        cfg,
-        "t".into(),
-        0,
-        seed,
-        VecAdder::default(),
-        Fixed(Arc::new(vars)),
-        None,
-    )
-    .unwrap();
+    let mut el = fixed_loop(cfg, 3, stage, warmup, seed);
     let mut n = 0;
     el.run(|_| {
         n += 1;
@@ -339,24 +343,7 @@ fn run_rooms(rooms: &[&str], stage: u32, steps: usize, seed: u64) -> TransitionB
     cfg.actor.envs = 3;
     cfg.env.max_steps = 25;
     cfg.curriculum.rooms = rooms.iter().map(|r| r.to_string()).collect();
-    let vars = Variables {
-        version: 1,
-        policy: Arc::new(policy_bytes(&cfg)),
-        stage,
-        room: cfg.curriculum.rooms[stage as usize].clone(),
-        warmup: true,
-        stop: false,
-    };
-    let mut el = EnvironmentLoop::new(
-        cfg,
-        "t".into(),
-        0,
-        seed,
-        VecAdder::default(),
-        Fixed(Arc::new(vars)),
-        None,
-    )
-    .unwrap();
+    let mut el = fixed_loop(cfg, 1, stage, true, seed);
     let mut n = 0;
     el.run(|_| {
         n += 1;
@@ -420,24 +407,7 @@ fn robustness_starts_at_its_stage() {
         cfg.env.robustness.beam_dropout = 0.1;
         cfg.curriculum.robust_from_stage = Some(2);
         cfg.curriculum.earlier_share = 0.5;
-        let vars = Variables {
-            version: 3,
-            policy: Arc::new(policy_bytes(&cfg)),
-            stage,
-            room: cfg.curriculum.rooms[stage as usize].clone(),
-            warmup: true,
-            stop: false,
-        };
-        let mut el = EnvironmentLoop::new(
-            cfg,
-            "t".into(),
-            0,
-            7,
-            VecAdder::default(),
-            Fixed(Arc::new(vars)),
-            None,
-        )
-        .unwrap();
+        let mut el = fixed_loop(cfg, 3, stage, true, 7);
         // Every environment finishes at least two episodes (timeouts at 15 steps at most).
         let mut dropouts = Vec::new();
         for _ in 0..40 {

@@ -312,19 +312,17 @@ impl LearnerState {
     /// the server has seen the old one go (at once for a closed connection, within the
     /// keepalive timeout for a vanished one). Call [`Self::close_variables_stream`] when it ends.
     pub fn open_variables_stream(&self, actor_id: u32) -> Result<(), LearnerError> {
-        let mut c = self.counters.lock().expect("counters lock");
-        let refused = if !c.actors.contains_key(&actor_id) {
-            LearnerError::UnknownActor(actor_id)
-        } else if !c.variables_streams.insert(actor_id) {
-            LearnerError::VariablesStreamOpen(actor_id)
-        } else {
-            return Ok(());
+        let refused = {
+            let mut c = self.counters.lock().expect("counters lock");
+            if !c.actors.contains_key(&actor_id) {
+                LearnerError::UnknownActor(actor_id)
+            } else if !c.variables_streams.insert(actor_id) {
+                LearnerError::VariablesStreamOpen(actor_id)
+            } else {
+                return Ok(());
+            }
         };
-        *c.rejected_by_reason.entry(refused.reason().to_string()).or_default() += 1;
-        if let Some(a) = c.actors.get_mut(&actor_id) {
-            a.last_error = Some(refused.to_string());
-        }
-        drop(c);
+        self.count_rejection(Some(actor_id), refused.reason(), &refused.to_string());
         tracing::warn!(actor_id, error = %refused, "refused a variables stream");
         Err(refused)
     }
