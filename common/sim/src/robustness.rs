@@ -46,6 +46,15 @@ pub struct RandomizeConfig {
     pub actuation_noise_scale: [f64; 2],
     /// Control-period jitter share.
     pub dt_jitter: [f64; 2],
+    /// Share of episodes that draw nothing from these ranges and run clean (LiDAR noise at
+    /// `lidar.noise_std`, nothing else perturbed), so that a noise stage keeps rehearsing the
+    /// clean skill it builds on. 0 (the default) perturbs every episode.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub clean_share: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 /// One episode's perturbations.
@@ -75,6 +84,10 @@ impl Perturbation {
                 dt_jitter: cfg.dt_jitter,
             };
         };
+        // Drawn only for a share above 0, so runs without one keep their random streams.
+        if r.clean_share > 0.0 && rng.random::<f64>() < r.clean_share {
+            return Perturbation { noise_std, ..Perturbation::default() };
+        }
         let mut u = |[lo, hi]: [f64; 2]| if lo < hi { rng.random_range(lo..=hi) } else { lo };
         let noise_std = u(r.noise_std);
         let beam_dropout = u(r.beam_dropout);
@@ -142,6 +155,12 @@ impl RobustnessConfig {
             range("beam_dropout", r.beam_dropout, &share)?;
             range("actuation_noise_scale", r.actuation_noise_scale, &sigma)?;
             range("dt_jitter", r.dt_jitter, &|v| (0.0..1.0).contains(&v))?;
+            if !share(r.clean_share) {
+                return bad(
+                    "randomize.clean_share",
+                    format!("must be a share of episodes in [0, 1], got {}", r.clean_share),
+                );
+            }
             let [lo, hi] = r.latency_steps;
             if lo > hi || hi > MAX_LATENCY {
                 return bad(
@@ -192,6 +211,7 @@ mod tests {
                 latency_steps: [0, 2],
                 actuation_noise_scale: [0.0, 1.0],
                 dt_jitter: [0.0, 0.2],
+                clean_share: 0.0,
             }),
             ..cfg
         };
@@ -228,6 +248,48 @@ mod tests {
             key(RobustnessConfig { randomize: Some(r), ..Default::default() }),
             "randomize.noise_std"
         );
+        let r = RandomizeConfig { clean_share: 1.5, ..Default::default() };
+        assert_eq!(
+            key(RobustnessConfig { randomize: Some(r), ..Default::default() }),
+            "randomize.clean_share"
+        );
         assert!(RobustnessConfig::default().check().is_ok());
+    }
+
+    #[test]
+    fn a_clean_share_of_episodes_runs_unperturbed_and_the_rest_draw_from_the_ranges() {
+        let ranges = RandomizeConfig {
+            noise_std: [0.01, 0.03],
+            beam_dropout: [0.02, 0.08],
+            latency_steps: [1, 1],
+            actuation_noise_scale: [0.5, 1.0],
+            dt_jitter: [0.05, 0.1],
+            clean_share: 0.3,
+        };
+        let cfg = RobustnessConfig {
+            actuation_noise_std: [0.02, 0.1],
+            randomize: Some(ranges.clone()),
+            ..Default::default()
+        };
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+        let draws: Vec<_> = (0..2000).map(|_| Perturbation::draw(&cfg, 0.005, &mut rng)).collect();
+        let clean: Vec<_> = draws.iter().filter(|p| p.is_clean()).collect();
+        // Every range above starts above 0, so an unperturbed episode is a clean draw.
+        assert!(clean.iter().all(|p| p.noise_std == 0.005 && p.latency_steps == 0));
+        let share = clean.len() as f64 / draws.len() as f64;
+        assert!((share - 0.3).abs() < 0.04, "clean share {share}");
+        assert!(draws.iter().filter(|p| !p.is_clean()).all(|p| p.noise_std >= 0.01));
+
+        // A share of 0 leaves the stream as it was: the same draws as before the key existed.
+        let without = RobustnessConfig {
+            randomize: Some(RandomizeConfig { clean_share: 0.0, ..ranges }),
+            ..cfg
+        };
+        let mut a = rand_pcg::Pcg64::seed_from_u64(7);
+        let mut b = rand_pcg::Pcg64::seed_from_u64(7);
+        let first = Perturbation::draw(&without, 0.0, &mut a);
+        let mut u = |[lo, hi]: [f64; 2]| b.random_range(lo..=hi);
+        assert_eq!(first.noise_std, u([0.01, 0.03]));
+        assert!(!toml::to_string(&without).unwrap().contains("clean_share"));
     }
 }
