@@ -6,6 +6,7 @@ use super::sensor::MountedSensor;
 use super::{Footprint, Lidar, Pose2, Room, dist, wrap_angle};
 use crate::EnvConfig;
 use crate::Outcome;
+use crate::laser_scan;
 use crate::obs;
 use crate::robustness::Perturbation;
 use rand::{Rng, SeedableRng};
@@ -445,11 +446,31 @@ impl NavEnv {
         }
         let p = self.perturb.beam_dropout;
         if p > 0.0 {
-            let max = self.cfg.lidar.range_max as f32;
-            for r in self.scan.iter_mut() {
-                if self.robust_rng.random_bool(p) {
-                    *r = if self.robust_rng.random_bool(0.5) { max } else { 0.0 };
-                }
+            self.drop_beams(p);
+        }
+    }
+
+    /// Drops each beam with probability `p` and shows the loss as the deployed pipeline
+    /// (`dvnav serve`, [`laser_scan`]) reads a driver's lost return, half each: +inf or 0
+    /// reads `range_max`; NaN is no reading, and its meta beam reads the nearer of its seen
+    /// neighbours. Training on losses read as 0 m would teach the agent about obstacles that
+    /// no deployed scan ever shows it.
+    fn drop_beams(&mut self, p: f64) {
+        let max = self.cfg.lidar.range_max as f32;
+        let mut unseen = false;
+        for r in self.scan.iter_mut() {
+            if self.robust_rng.random_bool(p) {
+                let no_return = self.robust_rng.random_bool(0.5);
+                *r = if no_return { max } else { f32::INFINITY };
+                unseen |= !no_return;
+            }
+        }
+        if unseen {
+            let layout = laser_scan::BeamLayout::new(self.cfg.lidar.beams, self.cfg.lidar.fov_deg);
+            let mut ranges: Vec<f64> = self.scan.iter().map(|&r| f64::from(r)).collect();
+            laser_scan::fill_from_neighbours(&mut ranges, layout.wraps());
+            for (o, r) in self.scan.iter_mut().zip(ranges) {
+                *o = r as f32;
             }
         }
     }

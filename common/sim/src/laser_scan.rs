@@ -140,7 +140,7 @@ impl BeamLayout {
     }
 
     /// Whether the beams go all the way round (the last one neighbours the first).
-    fn wraps(&self) -> bool {
+    pub(crate) fn wraps(&self) -> bool {
         self.fov >= TAU - 1e-9
     }
 
@@ -282,7 +282,7 @@ pub fn resample(
 /// end at the edge of a field that does not wrap; `wraps`: the last beam neighbours the first).
 /// With no beam seen at all, every beam reads 0 (blocked): a scan that says nothing is no
 /// licence to drive.
-fn fill_from_neighbours(ranges: &mut [f64], wraps: bool) {
+pub(crate) fn fill_from_neighbours(ranges: &mut [f64], wraps: bool) {
     let n = ranges.len();
     let Some(seen) = ranges.iter().position(|r| r.is_finite()) else {
         ranges.iter_mut().for_each(|r| *r = 0.0);

@@ -15,8 +15,9 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct RobustnessConfig {
-    /// Share of beams that return nothing in each scan, drawn beam by beam; a dropped beam
-    /// reads `range_max` or 0 (half each: sensors report a lost return either way).
+    /// Share of beams that return nothing in each scan, drawn beam by beam. A dropped beam
+    /// reads as `dvnav serve` reads a driver's lost return, half each: `range_max` (+inf or 0
+    /// from the driver) or the nearer of its seen neighbours (NaN).
     pub beam_dropout: f64,
     /// Control cycles of observation latency: the policy sees the observation of this many
     /// cycles ago (the reset's observation until there is one that old).

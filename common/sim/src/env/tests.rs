@@ -642,30 +642,37 @@ fn robust(r: crate::RobustnessConfig) -> EnvConfig {
 }
 
 #[test]
-fn beam_dropout_blanks_the_share_of_beams_it_says() {
+fn beam_dropout_loses_the_share_of_beams_it_says_as_serve_reads_them() {
     let room = Room::builtin("env0").unwrap();
     let r = crate::RobustnessConfig { beam_dropout: 0.3, ..Default::default() };
     let mut clean = NavEnv::new(room.clone(), &cfg(), 5);
     let mut noisy = NavEnv::new(room, &robust(r), 5);
-    let (mut dropped, mut zeros, mut total) = (0, 0, 0);
+    let (mut dropped, mut to_max, mut total) = (0, 0, 0);
     for _ in 0..20 {
         clean.reset();
         noisy.reset();
         // Robustness never changes the task.
         assert_eq!((clean.start(), clean.goal()), (noisy.start(), noisy.goal()));
-        for (c, n) in clean.scan().iter().zip(noisy.scan()) {
+        let (c, n) = (clean.scan(), noisy.scan());
+        let nearest = c.iter().copied().fold(f32::INFINITY, f32::min);
+        for (i, (&c, &n)) in c.iter().zip(n).enumerate() {
             total += 1;
+            // Never a 0 m reading: the deployed pipeline never shows one for a lost return.
+            assert!(n >= nearest, "beam {i} reads {n}, nearer than anything there ({nearest})");
             if c != n {
                 dropped += 1;
-                assert!(*n == 0.0 || *n == 10.0, "{n}");
-                zeros += (*n == 0.0) as usize;
+                to_max += (n == 10.0) as usize;
+                // Otherwise a neighbour's reading: some beam of the clean scan read it.
+                assert!(n == 10.0 || clean.scan().contains(&n), "beam {i} reads {n}");
             }
         }
     }
     let share = dropped as f64 / total as f64;
-    // Beams already reading range_max can drop to range_max unseen: a bit under 0.3.
+    // A lost beam already at range_max, or whose nearer neighbour reads as it did, looks
+    // unchanged: a bit under 0.3 in a closed room, up to sampling.
     assert!((0.2..0.33).contains(&share), "{share}");
-    assert!((zeros as f64 / dropped as f64 - 0.5).abs() < 0.1, "{zeros} of {dropped}");
+    assert!(to_max as f64 / dropped as f64 > 0.5, "{to_max} of {dropped}");
+    assert!(to_max < dropped, "some lost beams read a neighbour: {to_max} of {dropped}");
 }
 
 #[test]
