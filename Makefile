@@ -159,9 +159,9 @@ bench: release
 torch-venv:
 	python3 -m venv .venv && .venv/bin/pip install torch numpy
 
-# The held-out suite (issue 14): generated rooms at seeds 9000+ of every kind and the real-building
-# maps in maps/, at R = 0.2-0.6 m (DVST), clean and noisy (scripts/heldout_suite.py). ~6 min on
-# 2 cores with the defaults below. HELDOUT_ARGS="--checkpoint runs/x/checkpoints/ckpt-N" for another agent.
+# The held-out suite (issues 14, 29): local tasks (2-5 m, path <= 1.5x) in generated rooms at seeds
+# 9000+ of every kind and the real-building maps in maps/, at R = 0.2-0.6 m (DVST), clean and noisy
+# (scripts/heldout_suite.py). ~8 min on 2 cores with the defaults below. HELDOUT_ARGS="--checkpoint runs/x/checkpoints/ckpt-N" for another agent.
 HELDOUT_ARGS ?= --checkpoint models/meta-r0.2 --episodes 20 --map-episodes 50
 heldout: release
 	$(PYTHON) scripts/heldout_suite.py --dvnav ./target/release/dvnav $(HELDOUT_ARGS) --tasks local --out runs/heldout/suite.json
