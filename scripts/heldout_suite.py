@@ -14,6 +14,10 @@
 - Long tasks (issue 28): goals 5-10 m away by any route, in the generated kinds (radii up to
   0.6 m) and the maps, followed along the planner's path (`--subgoals planner`) and mapless
   (`--subgoals none`, the path planned only for its length), clean and noisy.
+- The kept checks (`--kept`, with local tasks): the paper's gate test (12 robots through DVST,
+  each to arrive by the paper's route: the gate at R <= 0.25 m, round the wall's left end
+  above), Env_3 (100 episodes, seed 7) and the dynamic scenario (3 robots). Not held out: they
+  are the paper's own tests, which a shipped agent keeps passing.
 - The maps again through each real sensor of sensors/ (`dvnav eval --sensor`): the scan that
   sensor's driver would publish from where it is mounted, resampled to the meta agent's beams as
   `dvnav serve` does (clean: the sensor's own noise only).
@@ -93,6 +97,8 @@ def main():
     p.add_argument("--long-radii", default="0.2,0.3,0.4,0.5,0.6", help="radii of the generated long-task suite")
     p.add_argument("--sensors", default="sensors/*.toml", help="glob of sensor files for the maps suite ('' for none)")
     p.add_argument("--out", help="write the pooled figures as JSON here")
+    p.add_argument("--no-kept", dest="kept", action="store_false",
+                   help="skip the kept checks (gate test, Env_3, dynamic scenario)")
     a = p.parse_args()
 
     started = time.time()
@@ -141,6 +147,8 @@ def main():
         s["by_radius"] = pool(run_eval(a.dvnav, s["args"]))
         s["command"] = " ".join(["dvnav", "eval", *s["args"], "--json"])
 
+    kept = run_kept(a.dvnav, a.checkpoint) if a.kept and "local" in tasks else None
+
     pct = lambda v: "-" if v is None else f"{100 * v:.1f} %"
     num = lambda v, d: "-" if v is None else f"{v:.{d}f}"
     print("| suite | noise | radius (m) | episodes | success | collision | ω reversals | mean abs Δω (rad/s) "
@@ -152,11 +160,37 @@ def main():
                   f"| {pct(f['collision_rate'])} | {pct(f['reversal_rate'])} | {num(f['mean_abs_domega'], 3)} "
                   f"| {num(f['path_length_m'], 1)} | {num(f['path_ratio'], 2)} | {num(f['replans'], 2)} "
                   f"| {pct(f['blocked_rate'])} |")
+    if kept:
+        gate = kept["gate"]
+        print(f"\nKept checks: gate test {gate['passed']} of {gate['robots']} by the paper's routes"
+              + (f" (failed: {', '.join(gate['failed'])})" if gate["failed"] else "")
+              + f"; Env_3 {pct(kept['env3']['success_rate'])} ({pct(kept['env3']['reversal_rate'])} reversals)"
+              + f"; dynamic {kept['dynamic']['passed']} of {kept['dynamic']['robots']}")
     print(f"\n{time.time() - started:.0f} s", file=sys.stderr)
     if a.out:
         os.makedirs(os.path.dirname(a.out) or ".", exist_ok=True)
         with open(a.out, "w") as f:
-            json.dump({"checkpoint": a.checkpoint, "suites": suites}, f, indent=1)
+            json.dump({"checkpoint": a.checkpoint, "suites": suites, "kept": kept}, f, indent=1)
+
+
+def run_kept(dvnav, checkpoint):
+    """The paper's own tests, as tests/shipped_model.rs checks them for the shipped agent."""
+    gate = run_eval(dvnav, ["--checkpoint", checkpoint, "--scenario", "gate"])
+    failed = []
+    for row in gate:
+        r = row["radius"]
+        want = "gate" if r <= 0.25 else "left"
+        # Through the gate on a near-straight path, as tests/shipped_model.rs asks.
+        straight = want == "left" or (row["path_length_m"] or 0.0) < 3.2
+        if row["outcome"] != "success" or row["route"] != want or not straight:
+            failed.append(f"R = {r}: {row['outcome']}, route {row['route']}, {row['path_length_m']:.2f} m")
+    env3 = run_eval(dvnav, ["--checkpoint", checkpoint, "--room", "env3", "--episodes", "100", "--seed", "7"])[0]
+    dynamic = run_eval(dvnav, ["--checkpoint", checkpoint, "--scenario", "dynamic"])
+    return {
+        "gate": {"robots": len(gate), "passed": len(gate) - len(failed), "failed": failed},
+        "env3": {k: env3.get(k) for k in ["success_rate", "collision_rate", "reversal_rate"]},
+        "dynamic": {"robots": len(dynamic), "passed": sum(r["success_rate"] == 1.0 for r in dynamic)},
+    }
 
 
 if __name__ == "__main__":
