@@ -60,6 +60,8 @@ pub struct NavEnv {
     sensor: Option<MountedSensor>,
     /// Meta beams the sensor did not see in the current scan (0 without a sensor).
     unseen_beams: usize,
+    /// The scan in f64 for refilling dropped beams, kept to spare the hot path an allocation.
+    dropout_ranges: Vec<f64>,
     room: Arc<Room>,
     /// The robot's shape, and the same as rapier shapes.
     footprint: Footprint,
@@ -182,6 +184,7 @@ impl NavEnv {
             lidar,
             sensor: cfg.sensor.as_ref().map(MountedSensor::new),
             unseen_beams: 0,
+            dropout_ranges: Vec::new(),
             room,
             body: Body::new(&footprint),
             sweep_radius: footprint.sweep_radius(),
@@ -467,9 +470,11 @@ impl NavEnv {
         }
         if unseen {
             let layout = laser_scan::BeamLayout::new(self.cfg.lidar.beams, self.cfg.lidar.fov_deg);
-            let mut ranges: Vec<f64> = self.scan.iter().map(|&r| f64::from(r)).collect();
-            laser_scan::fill_from_neighbours(&mut ranges, layout.wraps());
-            for (o, r) in self.scan.iter_mut().zip(ranges) {
+            let ranges = &mut self.dropout_ranges;
+            ranges.clear();
+            ranges.extend(self.scan.iter().map(|&r| f64::from(r)));
+            laser_scan::fill_from_neighbours(ranges, layout.wraps());
+            for (o, &r) in self.scan.iter_mut().zip(ranges.iter()) {
                 *o = r as f32;
             }
         }
