@@ -256,6 +256,7 @@ mod tests {
             episode_return: 13.0,
             policy_version: 1,
             warmup: false,
+            varied: false,
         };
         adder.add_episode(stats).unwrap();
         let mut bytes = Vec::new();

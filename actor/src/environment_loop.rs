@@ -393,6 +393,7 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
                     episode_return: env.episode_return() as f32,
                     policy_version: acted_version,
                     warmup: info.driver == Driver::Pid,
+                    varied: env.dvst_scale() != 1.0,
                 };
                 if info.logged {
                     let summary = dvnav_proto::EpisodeSummary {
@@ -403,7 +404,7 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
                         room: stats.room.clone(),
                         seed: self.seed,
                         footprint: format!("circle r={}", env.robot_radius()),
-                        mu: 1.0,
+                        mu: env.dvst_scale(),
                         outcome: dvnav_link::wire::outcome_to_proto(outcome) as i32,
                         steps: stats.steps,
                         episode_return: env.episode_return(),

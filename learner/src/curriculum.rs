@@ -98,16 +98,17 @@ impl Curriculum {
         self.skilled.as_ref()
     }
 
-    /// Records a finished episode; returns the stage change it caused, if any.
+    /// Records a finished episode; returns the stage change it caused, if any. An `uncounted`
+    /// one (the PID warm-up's, a varied robot's) changes nothing.
     pub fn record(
         &mut self,
         stage: u32,
         success: bool,
-        warmup: bool,
+        uncounted: bool,
         env_steps: u64,
         updates: u64,
     ) -> Option<StageChange> {
-        if warmup || stage != self.stage {
+        if uncounted || stage != self.stage {
             return None;
         }
         self.recent.push_back(success);

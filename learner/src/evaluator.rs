@@ -250,7 +250,9 @@ pub fn evaluate(
         l.policy_version = snap.policy_version;
     }
     let opts = RunOptions { samples: logger.is_some(), ..Default::default() };
-    let results = run_tasks(&tasks, &cfg.env, &mut [&mut agent], opts, &mut |task, done| match (
+    // The meta robot's skill decides the stages: no varied robots here (env.dvst).
+    let env = dvnav_config::EnvConfig { dvst: None, ..cfg.env.clone() };
+    let results = run_tasks(&tasks, &env, &mut [&mut agent], opts, &mut |task, done| match (
         logger.as_deref_mut(),
         &task.kind,
     ) {

@@ -57,6 +57,7 @@ fn one_episode(
         episode_return: ret,
         policy_version: 1,
         warmup: false,
+        varied: false,
     };
     b.episodes = vec![e; reports];
     b

@@ -233,6 +233,9 @@ fn parse_pair(s: &str) -> Result<[f64; 2], String> {
 /// perturbations of the command line (none by default) instead of any of its training.
 fn eval_env(args: &EvalArgs, cfg: &Config) -> anyhow::Result<dvnav_config::EnvConfig> {
     let mut env = cfg.env.clone();
+    // A run's varied training robots (env.dvst) are not an evaluation setting: every episode
+    // drives the robot the command names.
+    env.dvst = None;
     env.lidar.noise_std = args.noise_std;
     match args.tasks {
         Some(Tasks::Local) => {

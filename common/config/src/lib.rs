@@ -491,6 +491,16 @@ impl Config {
         if let Some(sg) = &e.subgoals {
             sg.check().map_err(|(k, r)| bad(&k, r))?;
         }
+        if let Some(d) = &e.dvst {
+            d.check(e.robot_radius).map_err(|(k, r)| bad(&format!("env.dvst.{k}"), r))?;
+            if e.footprint.is_some() || e.radius_input || e.radius_range.is_some() {
+                return Err(bad(
+                    "env.dvst",
+                    "drives the circular meta robot's varied robots through DVST; it cannot be \
+                     combined with env.footprint, env.radius_input or env.radius_range",
+                ));
+            }
+        }
         if e.max_start_goal_distance > 0.0 && e.max_start_goal_distance < e.min_start_goal_distance
         {
             return Err(bad(
@@ -935,6 +945,19 @@ mod tests {
         refused(&format!("{ri}radius_range = [0.0, 0.2]\n"), "env.radius_range", "0 < min ≤ max");
         refused(&format!("{ri}radius_range = [0.2, nan]\n"), "env.radius_range", "0 < min ≤ max");
         refused("[env]\nradius_range = [0.2, 0.5]\n", "env.radius_range", "radius_input = true");
+        refused(
+            "[env.dvst]\nradius_range = [0.1, 0.6]\nshare = 0.5\n",
+            "env.dvst.radius_range",
+            "≤ min",
+        );
+        refused("[env.dvst]\nradius_range = [0.2, 0.6]\nshare = 1.5\n", "env.dvst.share", "[0, 1]");
+        refused(
+            &format!("{ri}[env.dvst]\nradius_range = [0.2, 0.6]\nshare = 0.5\n"),
+            "env.dvst",
+            "env.radius_input",
+        );
+        let dvst = Config::from_toml_str("[env.dvst]\nradius_range = [0.2, 0.6]\nshare = 0.5\n");
+        assert_eq!(dvst.unwrap().env.dvst.map(|d| d.radius_range), Some([0.2, 0.6]));
         // The largest robot must fit every curriculum room (env3 is 5 m).
         refused(&format!("{ri}radius_range = [0.2, 2.45]\n"), "env.radius_range", "`env3`");
         let fp = "[env.footprint]\nname = \"c\"\n[[env.footprint.parts]]\nshape = \"circle\"\n\

@@ -145,6 +145,7 @@ mod tests {
             episode_return,
             policy_version: 1,
             warmup: false,
+            varied: false,
         }
     }
 

@@ -49,6 +49,9 @@ pub struct EpisodeStats {
     pub policy_version: u64,
     /// Driven by the PID warm-up controller.
     pub warmup: bool,
+    /// A varied robot driven through DVST (`env.dvst`): its success is not the meta robot's,
+    /// so the curriculum does not count it.
+    pub varied: bool,
 }
 
 /// Where a transition's next observation is in its [`TransitionBatch`].

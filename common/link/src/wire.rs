@@ -244,6 +244,7 @@ pub fn episode_to_proto(e: &EpisodeStats) -> pb::EpisodeStats {
         episode_return: e.episode_return,
         policy_version: e.policy_version,
         warmup: e.warmup,
+        varied: e.varied,
     }
 }
 
@@ -303,6 +304,7 @@ pub fn batch_from_proto(
             episode_return: e.episode_return,
             policy_version: e.policy_version,
             warmup: e.warmup,
+            varied: e.varied,
         });
     }
     Ok(TransitionBatch {
@@ -336,6 +338,7 @@ mod tests {
             episode_return: -9.9,
             policy_version: 4,
             warmup: false,
+            varied: false,
         });
         b
     }

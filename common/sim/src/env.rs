@@ -9,6 +9,7 @@ use crate::Outcome;
 use crate::laser_scan;
 use crate::obs;
 use crate::robustness::Perturbation;
+use crate::transfer::{VelocityBounds, transfer_observation_in_place, transfer_policy};
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, Normal};
 use rand_pcg::Pcg64;
@@ -74,6 +75,11 @@ pub struct NavEnv {
     /// `EnvConfig::radius_range` for the configured circular robot; `None` for a given
     /// footprint.
     radius_range: Option<[f64; 2]>,
+    /// `EnvConfig::dvst` for the configured circular robot; `None` for a given footprint.
+    dvst: Option<crate::DvstTrainingConfig>,
+    /// This episode's DVST scale μ: 1 for the meta robot, R / `robot_radius` for a varied
+    /// robot of `EnvConfig::dvst`, whose observations and commands go through DVST.
+    mu: f64,
     /// Timed obstacles of the room present now (a prefix of the room's order).
     active: usize,
     /// Set by [`NavEnv::set_room`]; swapped in at the next reset.
@@ -113,7 +119,7 @@ impl NavEnv {
         let footprint =
             cfg.footprint.clone().unwrap_or_else(|| Footprint::circle(cfg.robot_radius));
         let range = if cfg.footprint.is_none() { cfg.radius_range } else { None };
-        NavEnv::build(room, cfg, seed, footprint, range)
+        NavEnv::build(room, cfg, seed, footprint, range, true)
     }
 
     /// An environment for a robot of `footprint` (robot frame, LiDAR at the origin), whatever
@@ -128,7 +134,7 @@ impl NavEnv {
         seed: u64,
         footprint: Footprint,
     ) -> NavEnv {
-        NavEnv::build(room, cfg, seed, footprint, None)
+        NavEnv::build(room, cfg, seed, footprint, None, false)
     }
 
     /// [`NavEnv::new`] (`footprint` `None`) or [`NavEnv::with_footprint`], with an error instead
@@ -140,6 +146,7 @@ impl NavEnv {
         seed: u64,
         footprint: Option<Footprint>,
     ) -> Result<NavEnv, NoTask> {
+        let own = footprint.is_none();
         let (fp, range) = match footprint {
             Some(f) => (f, None),
             None => (
@@ -148,6 +155,7 @@ impl NavEnv {
             ),
         };
         let mut env = NavEnv::unreset(room, cfg, seed, fp, range);
+        env.dvst = if own && cfg.footprint.is_none() { cfg.dvst.clone() } else { None };
         env.try_reset()?;
         Ok(env)
     }
@@ -158,8 +166,10 @@ impl NavEnv {
         seed: u64,
         footprint: Footprint,
         radius_range: Option<[f64; 2]>,
+        own: bool,
     ) -> NavEnv {
         let mut env = NavEnv::unreset(room, cfg, seed, footprint, radius_range);
+        env.dvst = if own && cfg.footprint.is_none() { cfg.dvst.clone() } else { None };
         env.reset();
         env
     }
@@ -190,6 +200,8 @@ impl NavEnv {
             sweep_radius: footprint.sweep_radius(),
             radius: footprint.bounding_radius(),
             radius_range,
+            dvst: None,
+            mu: 1.0,
             footprint,
             active: 0,
             next_room: None,
@@ -238,6 +250,32 @@ impl NavEnv {
             let r = if lo < hi { self.rng.random_range(lo..=hi) } else { lo };
             self.set_circle(r);
         }
+        if let Some(d) = self.dvst.clone() {
+            let varied = d.share >= 1.0 || (d.share > 0.0 && self.rng.random::<f64>() < d.share);
+            let [lo, hi] = d.radius_range;
+            let r = match varied {
+                true if lo < hi => self.rng.random_range(lo..=hi),
+                true => lo,
+                false => self.cfg.robot_radius,
+            };
+            self.set_circle(r);
+            self.mu = r / self.cfg.robot_radius;
+            if self.mu != 1.0 {
+                match self.draw_task() {
+                    Ok(()) => return Ok(()),
+                    // A room too tight for the varied robot: the meta robot drives this one.
+                    Err(_) => {
+                        self.set_circle(self.cfg.robot_radius);
+                        self.mu = 1.0;
+                    }
+                }
+            }
+        }
+        self.draw_task()
+    }
+
+    /// Draws this episode's start and goal for the robot as it is now, and begins it.
+    fn draw_task(&mut self) -> Result<(), NoTask> {
         let need = self.footprint.bounding_radius() + self.cfg.spawn_clearance;
         // The grid for the radius rounded up to whole centimetres, so a drawn radius range
         // shares a few grids per room; the rounding comes out of the join slack.
@@ -303,9 +341,12 @@ impl NavEnv {
     /// range the robot is the circle of `robot_radius`, so every route drives the same robot.
     pub fn reset_to(&mut self, start: Pose2, goal: [f64; 2]) {
         self.take_next_room();
-        if self.radius_range.is_some() && self.radius != self.cfg.robot_radius {
+        if (self.radius_range.is_some() || self.dvst.is_some())
+            && self.radius != self.cfg.robot_radius
+        {
             self.set_circle(self.cfg.robot_radius);
         }
+        self.mu = 1.0;
         self.begin(start, goal);
     }
 
@@ -504,6 +545,12 @@ impl NavEnv {
         let omega_prev = (self.steps > 0).then_some(self.omega);
         let v = clamp(v, 0.0, self.cfg.v_max);
         let omega = clamp(omega, -self.cfg.omega_max, self.cfg.omega_max);
+        let (v, omega) = if self.mu != 1.0 {
+            let bounds = VelocityBounds { v_max: self.cfg.v_max, omega_max: self.cfg.omega_max };
+            transfer_policy(v, omega, self.mu, bounds)
+        } else {
+            (v, omega)
+        };
         self.v = v;
         self.omega = omega;
         // What the motors do: the command plus actuation noise, within the bounds again.
@@ -566,7 +613,9 @@ impl NavEnv {
             (rw.success, Some(Outcome::Success))
         } else {
             let change = omega_prev.map_or(0.0, |w| (self.omega - w).abs());
-            let r = rw.progress * (d_prev - d_next) - rw.time_penalty - rw.omega_change * change;
+            // In the meta robot's units, as the agent observes distances.
+            let progress = (d_prev - d_next) / self.mu;
+            let r = rw.progress * progress - rw.time_penalty - rw.omega_change * change;
             (r, (self.steps >= self.cfg.max_steps).then_some(Outcome::Timeout))
         };
         let reward = reward as f32;
@@ -589,14 +638,30 @@ impl NavEnv {
     /// # Panics
     /// If `out` is not [`NavEnv::obs_dim`] long.
     ///
-    /// With observation latency (`env.robustness.latency_steps` = k) it writes the observation
-    /// of k steps ago instead (the reset's while the episode is younger).
+    /// With observation latency (`env.robustness.latency_steps` = k) it writes the scan and
+    /// goal of k steps ago instead (the reset's while the episode is younger), and the last
+    /// command as it is now: a controller knows what it sent, only its sensors and odometry
+    /// lag (`dvnav serve` fills v, ω from the robot's last command).
     pub fn write_obs(&self, out: &mut [f32]) {
         assert_eq!(out.len(), self.obs_dim(), "observation buffer length");
         match self.history.front() {
-            Some(old) => out.copy_from_slice(old),
+            Some(old) => {
+                out.copy_from_slice(old);
+                let beams = self.scan.len();
+                out[beams + obs::LINEAR_VELOCITY] = self.v as f32;
+                out[beams + obs::ANGULAR_VELOCITY] = self.omega as f32;
+            }
             None => self.compose_obs(out),
         }
+        if self.mu != 1.0 {
+            let range = [self.cfg.lidar.range_min, self.cfg.lidar.range_max];
+            transfer_observation_in_place(out, self.scan.len(), self.mu, Some(range));
+        }
+    }
+
+    /// This episode's DVST scale μ (`EnvConfig::dvst`): 1 for the meta robot.
+    pub fn dvst_scale(&self) -> f64 {
+        self.mu
     }
 
     /// This episode's robustness perturbations ([`crate::robustness`]).

@@ -70,6 +70,12 @@ pub struct EnvConfig {
     /// its goal; the reward's progress is the path left. Absent: the paper's mapless task.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub subgoals: Option<crate::subgoal::SubgoalConfig>,
+    /// Varied robots in training (`[env.dvst]`): a share of the episodes drive a bigger
+    /// circular robot, observed and commanded through DVST ([`crate::transfer`]), so the meta
+    /// agent learns the scaled worlds DVST shows it. Absent: every episode is the meta robot,
+    /// as in the paper. Evaluations never draw them (`dvnav eval` drives the robots it names).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dvst: Option<DvstTrainingConfig>,
     /// The reward function.
     pub reward: RewardConfig,
     /// LiDAR dropout, observation latency, actuation noise and control-period jitter
@@ -113,9 +119,46 @@ impl Default for EnvConfig {
             lidar: LidarConfig::default(),
             sensor: None,
             subgoals: None,
+            dvst: None,
             reward: RewardConfig::default(),
             robustness: crate::RobustnessConfig::default(),
         }
+    }
+}
+
+/// `[env.dvst]`: which episodes of a training run drive a varied robot through DVST.
+///
+/// Such an episode draws a circle of radius R uniformly from `radius_range` and simulates it
+/// in the room at its own size; the agent observes what DVST would show the meta agent for it
+/// (lengths divided by μ = R / `robot_radius`, scans clamped to the meta LiDAR's range) and
+/// its command goes through DVST's policy transfer within `v_max` and `omega_max`. The
+/// reward's progress term is divided by μ, so that returns stay in the meta robot's units.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DvstTrainingConfig {
+    /// `[min, max]` radius (m) of the varied robots, `robot_radius ≤ min ≤ max ≤ 2 m`.
+    pub radius_range: [f64; 2],
+    /// Share of episodes that drive a varied robot (the rest the meta robot), in [0, 1].
+    pub share: f64,
+}
+
+impl DvstTrainingConfig {
+    /// Checks the range against the meta robot's radius and the share; the key and the reason
+    /// when wrong.
+    pub fn check(&self, robot_radius: f64) -> Result<(), (String, String)> {
+        let [lo, hi] = self.radius_range;
+        if !(lo.is_finite() && hi.is_finite() && robot_radius <= lo && lo <= hi && hi <= 2.0) {
+            return Err((
+                "radius_range".into(),
+                format!(
+                    "needs robot_radius ({robot_radius} m) ≤ min ≤ max ≤ 2 m, got [{lo}, {hi}]"
+                ),
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.share) {
+            return Err(("share".into(), format!("must lie in [0, 1], got {}", self.share)));
+        }
+        Ok(())
     }
 }
 

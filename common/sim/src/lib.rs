@@ -71,10 +71,11 @@ pub mod room_set;
 pub mod sensor;
 pub mod spec;
 pub mod subgoal;
+pub mod transfer;
 mod vec_env;
 
 pub use env::{NavEnv, NoTask, RouteStats, StepOutcome};
-pub use env_config::{EnvConfig, LidarConfig, RewardConfig};
+pub use env_config::{DvstTrainingConfig, EnvConfig, LidarConfig, RewardConfig};
 pub use footprint::Footprint;
 pub use footprint::MAX_ROBOT_EXTENT_M;
 pub use footprint::checked_parts;

@@ -19,8 +19,8 @@ pub struct RobustnessConfig {
     /// reads as `dvnav serve` reads a driver's lost return, half each: `range_max` (+inf or 0
     /// from the driver) or the nearer of its seen neighbours (NaN).
     pub beam_dropout: f64,
-    /// Control cycles of observation latency: the policy sees the observation of this many
-    /// cycles ago (the reset's observation until there is one that old).
+    /// Control cycles of observation latency: the policy sees the scan and goal of this many
+    /// cycles ago (the reset's until there is one that old) beside the command it last sent.
     pub latency_steps: u32,
     /// Standard deviations of Gaussian noise on the executed command, `[v (m/s), ω (rad/s)]`;
     /// the noisy command is clamped to the velocity bounds again.

@@ -37,6 +37,7 @@ fn batch(cfg: &Config, n: usize, version: u64, episodes: &[(u32, Outcome)]) -> T
             episode_return: 1.0,
             policy_version: version,
             warmup: false,
+            varied: false,
         });
     }
     b

@@ -547,7 +547,10 @@ impl LearnerState {
         for e in &batch.episodes {
             c.episodes += 1;
             let success = e.outcome == Outcome::Success;
-            if let Some(change) = c.curriculum.record(e.stage, success, e.warmup, received, updates)
+            // A varied robot's episode (env.dvst) says nothing of the meta robot's stage bar.
+            let uncounted = e.warmup || e.varied;
+            if let Some(change) =
+                c.curriculum.record(e.stage, success, uncounted, received, updates)
             {
                 tracing::info!(stage = change.stage, room = %change.room, env_steps = received, "curriculum: next stage");
             }

@@ -29,6 +29,7 @@ fn batch(cfg: &Config, n: usize, actor_id: u32, seq: u64) -> pb::TransitionBatch
         episode_return: 1.0,
         policy_version: 1,
         warmup: true,
+        varied: false,
     });
     wire::batch_to_proto(&b, actor_id, seq)
 }

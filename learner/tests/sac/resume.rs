@@ -113,6 +113,7 @@ fn wire_batch(cfg: &Config, n: usize, seq: u64, outcome: Outcome) -> dvnav_proto
         episode_return: 1.0,
         policy_version: 1,
         warmup: false,
+        varied: false,
     });
     dvnav_link::wire::batch_to_proto(&b, 0, seq)
 }

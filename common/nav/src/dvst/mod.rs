@@ -43,7 +43,9 @@ pub mod robots;
 pub mod route;
 pub mod scale;
 pub mod shared_policy;
-pub mod transfer;
+/// Observation and policy transfer live with the simulator, which also trains the meta agent
+/// through them (`env.dvst`, [`dvnav_sim::transfer`]).
+pub use dvnav_sim::transfer;
 
 /// The resampling of any LiDAR's scan to the meta agent's beams lives with the simulator, which
 /// also uses it for `dvnav eval --sensor` ([`dvnav_sim::sensor`]).

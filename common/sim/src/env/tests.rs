@@ -676,7 +676,7 @@ fn beam_dropout_loses_the_share_of_beams_it_says_as_serve_reads_them() {
 }
 
 #[test]
-fn latency_shows_the_observation_of_k_steps_ago() {
+fn latency_shows_the_scan_and_goal_of_k_steps_ago_and_the_command_as_sent() {
     let room = Room::builtin("env0").unwrap();
     let r = crate::RobustnessConfig { latency_steps: 2, ..Default::default() };
     let mut clean = NavEnv::new(room.clone(), &cfg(), 8);
@@ -688,9 +688,15 @@ fn latency_shows_the_observation_of_k_steps_ago() {
         let mut l = vec![0.0; d];
         clean.write_obs(&mut c);
         late.write_obs(&mut l);
-        past.push(c);
+        past.push(c.clone());
+        let beams = d - 4;
+        let (seen, command) = l.split_at(beams + obs::LINEAR_VELOCITY);
         let want = &past[t.max(2) - 2];
-        assert_eq!(&l, want, "step {t}");
+        assert_eq!(seen, &want[..beams + obs::LINEAR_VELOCITY], "scan and goal of step {t}");
+        assert_eq!(command, &c[beams + obs::LINEAR_VELOCITY..], "the command as sent, step {t}");
+        if t >= 3 {
+            assert_ne!(seen, &c[..beams + obs::LINEAR_VELOCITY], "step {t} shows the past");
+        }
         clean.step(0.3, 0.4);
         late.step(0.3, 0.4);
         assert_eq!(clean.pose(), late.pose(), "latency delays what is seen, not the motion");
@@ -906,4 +912,68 @@ fn follow_share_mixes_followed_and_mapless_episodes_without_changing_the_tasks()
     assert!((70..=130).contains(&followed), "{followed} of 200 followed");
     let bad = crate::subgoal::SubgoalConfig { follow_share: 1.5, ..Default::default() };
     assert_eq!(bad.check().unwrap_err().0, "env.subgoals.follow_share");
+}
+
+/// `[env.dvst]`: an episode of a varied robot shows the meta agent what DVST would (lengths
+/// over μ, clamped to the meta LiDAR's range), moves as DVST's policy transfer commands, and
+/// pays progress in the meta robot's units; evaluation routes drive the meta robot.
+#[test]
+fn a_varied_robot_episode_goes_through_dvst() {
+    use crate::transfer::{VelocityBounds, transfer_observation, transfer_policy};
+    let room = Room::builtin("env1").unwrap();
+    let varied = EnvConfig {
+        dvst: Some(crate::DvstTrainingConfig { radius_range: [0.5, 0.5], share: 1.0 }),
+        ..cfg()
+    };
+    let big = EnvConfig { robot_radius: 0.5, ..cfg() };
+    let mut env = NavEnv::new(room.clone(), &varied, 4);
+    assert_eq!((env.robot_radius(), env.dvst_scale()), (0.5, 2.5));
+    // The same robot simulated plainly at its own size, from the same pose.
+    let mut plain = NavEnv::new(room, &big, 4);
+    let (start, goal) = (env.pose(), env.goal());
+    plain.reset_to(start, goal);
+    let bounds = VelocityBounds { v_max: 0.5, omega_max: std::f64::consts::FRAC_PI_2 };
+    let d = env.obs_dim();
+    let (mut seen, mut raw, mut want) = (vec![0.0; d], vec![0.0; d], vec![0.0; d]);
+    for (t, &(v, w)) in [(0.4, 0.3), (0.1, -1.2), (0.5, 0.0), (0.0, 1.0)].iter().enumerate() {
+        env.write_obs(&mut seen);
+        plain.write_obs(&mut raw);
+        transfer_observation(&raw, 540, 2.5, Some([0.0, 10.0]), &mut want);
+        assert_eq!(seen, want, "observation of step {t}");
+        let (vs, ws) = transfer_policy(v, w, 2.5, bounds);
+        let a = env.step(v, w);
+        let b = plain.step(vs, ws);
+        assert_eq!(env.pose(), plain.pose(), "step {t} moves as DVST commands");
+        assert_eq!(env.velocity(), (vs, ws));
+        if a.done.is_none() {
+            let progress_b = b.reward + 0.01; // the paper's time penalty
+            let progress_a = a.reward + 0.01;
+            assert!((progress_a * 2.5 - progress_b).abs() < 1e-5, "{a:?} {b:?}");
+        }
+    }
+    env.reset_to(start, goal);
+    assert_eq!((env.robot_radius(), env.dvst_scale()), (0.2, 1.0), "routes drive the meta robot");
+
+    // A share of the episodes, the rest the meta robot; a given footprint never varies.
+    let half = EnvConfig {
+        dvst: Some(crate::DvstTrainingConfig { radius_range: [0.3, 0.6], share: 0.5 }),
+        ..cfg()
+    };
+    let mut env = NavEnv::new(Room::builtin("env1").unwrap(), &half, 9);
+    let mut varied_count = 0;
+    for _ in 0..200 {
+        env.reset();
+        let mu = env.dvst_scale();
+        if mu != 1.0 {
+            varied_count += 1;
+            assert!((1.5..=3.0).contains(&mu), "{mu}");
+            assert!((env.robot_radius() - 0.2 * mu).abs() < 1e-12);
+        } else {
+            assert_eq!(env.robot_radius(), 0.2);
+        }
+    }
+    assert!((70..=130).contains(&varied_count), "{varied_count} of 200");
+    let fp = Footprint::circle(0.2);
+    let named = NavEnv::with_footprint(Room::builtin("env1").unwrap(), &half, 9, fp);
+    assert_eq!(named.dvst_scale(), 1.0);
 }

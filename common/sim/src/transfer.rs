@@ -6,7 +6,7 @@
 //! velocity by μ and the DSR follows the meta agent's arc scaled by μ (angular velocity and
 //! the arc's angle are unchanged by scaling).
 
-use dvnav_sim::obs::{ANGULAR_VELOCITY, GOAL_ANGLE, GOAL_DISTANCE, LINEAR_VELOCITY, obs_dim};
+use crate::obs::{GOAL_DISTANCE, LINEAR_VELOCITY, obs_dim};
 
 /// A robot's velocity bounds: |v| ≤ `v_max`, |ω| ≤ `omega_max`.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -35,7 +35,7 @@ impl VelocityBounds {
 }
 
 /// Observation transfer: s_m = {s_s^d / μ, s_s^di}. Writes into `out` the observation the meta
-/// agent gets for the varied robot's observation `obs` (layout of [`dvnav_sim::obs`], `beams`
+/// agent gets for the varied robot's observation `obs` (layout of [`crate::obs`], `beams`
 /// ranges): the scan, the goal distance and v divided by `mu`; the goal angle and ω unchanged.
 ///
 /// `scan_range` is the meta agent's LiDAR range `[min, max]` (m), if known. Scaled ranges are
@@ -57,16 +57,31 @@ pub fn transfer_observation(
     let d = obs_dim(beams);
     assert_eq!(obs.len(), d, "observation length");
     assert_eq!(out.len(), d, "output length");
+    out.copy_from_slice(obs);
+    transfer_observation_in_place(out, beams, mu, scan_range);
+}
+
+/// [`transfer_observation`] over the observation itself: how the simulator shows a varied
+/// robot's observation to the meta agent in training (`env.dvst`) without a second buffer.
+///
+/// # Panics
+/// If `obs` is not `obs_dim(beams)` long.
+pub fn transfer_observation_in_place(
+    obs: &mut [f32],
+    beams: usize,
+    mu: f64,
+    scan_range: Option<[f64; 2]>,
+) {
+    assert_eq!(obs.len(), obs_dim(beams), "observation length");
     let mu = mu as f32;
     let (lo, hi) =
         scan_range.map_or((f32::NEG_INFINITY, f32::INFINITY), |[lo, hi]| (lo as f32, hi as f32));
-    for (o, &r) in out[..beams].iter_mut().zip(&obs[..beams]) {
-        *o = (r / mu).clamp(lo, hi);
+    for r in &mut obs[..beams] {
+        *r = (*r / mu).clamp(lo, hi);
     }
-    out[beams + GOAL_DISTANCE] = obs[beams + GOAL_DISTANCE] / mu;
-    out[beams + GOAL_ANGLE] = obs[beams + GOAL_ANGLE];
-    out[beams + LINEAR_VELOCITY] = obs[beams + LINEAR_VELOCITY] / mu;
-    out[beams + ANGULAR_VELOCITY] = obs[beams + ANGULAR_VELOCITY];
+    // The goal angle and ω are angles: scaling leaves them.
+    obs[beams + GOAL_DISTANCE] /= mu;
+    obs[beams + LINEAR_VELOCITY] /= mu;
 }
 
 /// Policy transfer: the varied robot's command (v_s, ω_s) from the meta agent's (v_m, ω_m) on
