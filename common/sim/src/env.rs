@@ -116,10 +116,9 @@ impl NavEnv {
     /// # Panics
     /// If the room has no room for a start and a goal (see [`NavEnv::reset`]).
     pub fn new(room: Arc<Room>, cfg: &EnvConfig, seed: u64) -> NavEnv {
-        let footprint =
-            cfg.footprint.clone().unwrap_or_else(|| Footprint::circle(cfg.robot_radius));
-        let range = if cfg.footprint.is_none() { cfg.radius_range } else { None };
-        NavEnv::build(room, cfg, seed, footprint, range, true)
+        let mut env = NavEnv::unreset(room, cfg, seed, None);
+        env.reset();
+        env
     }
 
     /// An environment for a robot of `footprint` (robot frame, LiDAR at the origin), whatever
@@ -134,7 +133,9 @@ impl NavEnv {
         seed: u64,
         footprint: Footprint,
     ) -> NavEnv {
-        NavEnv::build(room, cfg, seed, footprint, None, false)
+        let mut env = NavEnv::unreset(room, cfg, seed, Some(footprint));
+        env.reset();
+        env
     }
 
     /// [`NavEnv::new`] (`footprint` `None`) or [`NavEnv::with_footprint`], with an error instead
@@ -146,42 +147,19 @@ impl NavEnv {
         seed: u64,
         footprint: Option<Footprint>,
     ) -> Result<NavEnv, NoTask> {
-        let own = footprint.is_none();
-        let (fp, range) = match footprint {
-            Some(f) => (f, None),
-            None => (
-                cfg.footprint.clone().unwrap_or_else(|| Footprint::circle(cfg.robot_radius)),
-                if cfg.footprint.is_none() { cfg.radius_range } else { None },
-            ),
-        };
-        let mut env = NavEnv::unreset(room, cfg, seed, fp, range);
-        env.dvst = if own && cfg.footprint.is_none() { cfg.dvst.clone() } else { None };
+        let mut env = NavEnv::unreset(room, cfg, seed, footprint);
         env.try_reset()?;
         Ok(env)
     }
 
-    fn build(
-        room: Arc<Room>,
-        cfg: &EnvConfig,
-        seed: u64,
-        footprint: Footprint,
-        radius_range: Option<[f64; 2]>,
-        own: bool,
-    ) -> NavEnv {
-        let mut env = NavEnv::unreset(room, cfg, seed, footprint, radius_range);
-        env.dvst = if own && cfg.footprint.is_none() { cfg.dvst.clone() } else { None };
-        env.reset();
-        env
-    }
-
-    /// The environment before its first reset.
-    fn unreset(
-        room: Arc<Room>,
-        cfg: &EnvConfig,
-        seed: u64,
-        footprint: Footprint,
-        radius_range: Option<[f64; 2]>,
-    ) -> NavEnv {
+    /// The environment before its first reset, for a `named` footprint or (`None`) the
+    /// configured robot: only the configured circle draws its radius per episode
+    /// (`EnvConfig::radius_range`, `EnvConfig::dvst`).
+    fn unreset(room: Arc<Room>, cfg: &EnvConfig, seed: u64, named: Option<Footprint>) -> NavEnv {
+        let own_circle = named.is_none() && cfg.footprint.is_none();
+        let footprint = named
+            .or_else(|| cfg.footprint.clone())
+            .unwrap_or_else(|| Footprint::circle(cfg.robot_radius));
         if let Err(e) = footprint.validate() {
             panic!("invalid footprint: {e:#}");
         }
@@ -199,8 +177,8 @@ impl NavEnv {
             body: Body::new(&footprint),
             sweep_radius: footprint.sweep_radius(),
             radius: footprint.bounding_radius(),
-            radius_range,
-            dvst: None,
+            radius_range: cfg.radius_range.filter(|_| own_circle),
+            dvst: cfg.dvst.filter(|_| own_circle),
             mu: 1.0,
             footprint,
             active: 0,
@@ -250,7 +228,7 @@ impl NavEnv {
             let r = if lo < hi { self.rng.random_range(lo..=hi) } else { lo };
             self.set_circle(r);
         }
-        if let Some(d) = self.dvst.clone() {
+        if let Some(d) = self.dvst {
             let varied = d.share >= 1.0 || (d.share > 0.0 && self.rng.random::<f64>() < d.share);
             let [lo, hi] = d.radius_range;
             let r = match varied {

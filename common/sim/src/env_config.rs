@@ -133,7 +133,7 @@ impl Default for EnvConfig {
 /// (lengths divided by μ = R / `robot_radius`, scans clamped to the meta LiDAR's range) and
 /// its command goes through DVST's policy transfer within `v_max` and `omega_max`. The
 /// reward's progress term is divided by μ, so that returns stay in the meta robot's units.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct DvstTrainingConfig {
     /// `[min, max]` radius (m) of the varied robots, `robot_radius ≤ min ≤ max ≤ 2 m`.
