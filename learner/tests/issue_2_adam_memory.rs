@@ -30,6 +30,7 @@ fn memory_stays_flat_over_many_updates() {
         actions: (0..n * 2).map(|i| ((i as f32) * 0.41).sin()).collect(),
         rewards: (0..n).map(|i| (i as f32 * 0.1).cos()).collect(),
         next_obs: (0..n * d).map(|i| 0.35 + (i % 19) as f32 * 0.25).collect(),
+        discounts: vec![0.99; n],
         terminated: (0..n).map(|i| (i % 7 == 0) as u8 as f32).collect(),
     };
     let nets = SacNetworks::new(&cfg, 1, &Device::Cpu).unwrap();

@@ -136,6 +136,13 @@ pub struct SacConfig {
     pub updates_per_env_step: f64,
     /// Transitions in the replay buffer before the first update.
     pub learning_starts: u64,
+    /// Steps summed into each critic target (n-step return): the target is
+    /// r_t + γ r_t+1 + … + γ^(k−1) r_t+k−1 + γ^k (1 − d) V(s_t+k), with k = n unless the
+    /// episode ends, or the stored steps of the episode do (an actor's batch boundary), first.
+    /// 1 is the paper's one-step target. Larger n propagates the goal's reward back faster
+    /// at the cost of bias from the off-policy steps in between (no correction, as in
+    /// Rainbow and D4PG).
+    pub n_step: usize,
 }
 
 impl Default for SacConfig {
@@ -154,9 +161,15 @@ impl Default for SacConfig {
             policy_l2: 1e-3,
             updates_per_env_step: 0.25,
             learning_starts: 2_000,
+            n_step: 1,
         }
     }
 }
+
+/// Longest n-step return (`sac.n_step`): an environment's steps are linked only inside one of
+/// its actor's batches (`actor.batch_transitions` shared by `actor.envs`), so longer chains
+/// would rarely be whole.
+pub const MAX_N_STEP: usize = 32;
 
 /// The replay buffer.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -597,6 +610,12 @@ impl Config {
         }
         non_negative("sac.policy_l2", s.policy_l2)?;
         positive("sac.updates_per_env_step", s.updates_per_env_step)?;
+        if !(1..=MAX_N_STEP).contains(&s.n_step) {
+            return Err(bad(
+                "sac.n_step",
+                format!("must be in 1..={MAX_N_STEP} (1: one-step targets), got {}", s.n_step),
+            ));
+        }
         if self.replay.capacity < s.batch_size {
             return Err(bad("replay.capacity", "must hold at least one batch (sac.batch_size)"));
         }
@@ -990,6 +1009,12 @@ mod tests {
         assert_eq!(err.key, "sac.gamma");
         let err = Config::from_toml_str("[env.lidar]\nbeams = 10\n").unwrap_err();
         assert_eq!(err.key, "network.conv1_kernel");
+        for n in [0, MAX_N_STEP + 1] {
+            let err = Config::from_toml_str(&format!("[sac]\nn_step = {n}\n")).unwrap_err();
+            assert_eq!(err.key, "sac.n_step", "{n}");
+        }
+        let three = Config::from_toml_str("[sac]\nn_step = 3\n").unwrap();
+        assert_eq!(three.sac.n_step, 3);
     }
 
     #[test]

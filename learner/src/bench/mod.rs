@@ -5,7 +5,7 @@
 pub mod flops;
 pub mod peak;
 
-use crate::replay::{Batch, ObsCodec, ReplayBuffer};
+use crate::replay::{Batch, ObsCodec, ReplayBuffer, Returns};
 use crate::sac::{SacLearner, SacNetworks};
 use candle_core::{Device, Tensor};
 use dvnav_config::Config;
@@ -111,6 +111,7 @@ pub fn sac_updates(cfg: &Config, run: &UpdateBench, dev: &Device) -> anyhow::Res
     }
     let mut rng = rand_pcg::Pcg64::seed_from_u64(0);
     let replay = random_replay(cfg, 4 * batch, &mut rng);
+    let returns = Returns::for_config(&cfg.sac);
     let nets = SacNetworks::new(cfg, 0, &dev)?;
     let mut learner =
         SacLearner::new(nets, cfg.sac.clone(), dev.clone(), 0)?.with_threads(threads)?;
@@ -119,13 +120,13 @@ pub fn sac_updates(cfg: &Config, run: &UpdateBench, dev: &Device) -> anyhow::Res
     }
     let mut b = Batch::default();
     for _ in 0..warmup {
-        replay.sample_into(batch, &mut rng, &mut b);
+        replay.sample_into(batch, returns, &mut rng, &mut b);
         learner.update(&b)?;
     }
     dev.synchronize()?;
     let t = Instant::now();
     for _ in 0..updates {
-        replay.sample_into(batch, &mut rng, &mut b);
+        replay.sample_into(batch, returns, &mut rng, &mut b);
         learner.update(&b)?;
     }
     // A GPU runs asynchronously: the time counts only once its queue is done.
@@ -227,6 +228,7 @@ pub fn replay(cfg: &Config, capacity: usize, batch: usize) -> anyhow::Result<Rep
     envs.write_obs(&mut obs);
     let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
     let mut replay = ReplayBuffer::new(ObsCodec::for_config(cfg), capacity);
+    let returns = Returns::for_config(&cfg.sac);
     let mut tb = TransitionBatch::with_capacity(d, 128);
     let mut insert_s = 0.0;
     let mut made = 0;
@@ -281,11 +283,11 @@ pub fn replay(cfg: &Config, capacity: usize, batch: usize) -> anyhow::Result<Rep
     replay.insert(&tb);
     insert_s += t.elapsed().as_secs_f64();
     let mut b = Batch::default();
-    replay.sample_into(batch, &mut rng, &mut b);
+    replay.sample_into(batch, returns, &mut rng, &mut b);
     let reps = 200;
     let t = Instant::now();
     for _ in 0..reps {
-        replay.sample_into(batch, &mut rng, &mut b);
+        replay.sample_into(batch, returns, &mut rng, &mut b);
     }
     let sample_us = t.elapsed().as_secs_f64() * 1e6 / reps as f64;
     let mib = |b: usize| b as f64 / (1 << 20) as f64;

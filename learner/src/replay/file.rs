@@ -1,6 +1,7 @@
 //! The replay buffer in a checkpoint (`replay.safetensors`, written when
 //! `replay.save_in_checkpoint` is on): the stored observations oldest first, and the
-//! transitions oldest first with the observations they refer to. A restored buffer samples the
+//! transitions oldest first with the observations they refer to (which also says which step
+//! continues which, for n-step returns). A restored buffer samples the
 //! same transitions with the same generator and stores and evicts the next arrivals as the saved
 //! one would have.
 //!
@@ -115,9 +116,17 @@ impl ReplayBuffer {
         for k in 0..n_obs {
             buffer.store_encoded(&scans[k * s..(k + 1) * s], &extras[k * e..(k + 1) * e]);
         }
+        // The links between an episode's steps are not in the file: a transition's successor
+        // is the later one whose observation is its next observation (ids are unique).
+        let acting_from: HashMap<u64, usize> =
+            obs_id.iter().enumerate().map(|(i, &id)| (id, i)).collect();
         for i in 0..n {
+            let successor = match acting_from.get(&next_id[i]) {
+                Some(&j) if j > i => (j - i) as u32,
+                _ => 0,
+            };
             let a = [actions[2 * i], actions[2 * i + 1]];
-            buffer.push(obs_id[i], next_id[i], a, rewards[i], terminated[i] != 0);
+            buffer.push(obs_id[i], next_id[i], successor, a, rewards[i], terminated[i] != 0);
         }
         Ok(buffer)
     }

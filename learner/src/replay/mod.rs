@@ -1,5 +1,6 @@
 //! The replay buffer: a ring of transitions sampled uniformly, each observation stored once and
-//! compactly ([`ObsCodec`]); `file.rs` saves and restores it with a checkpoint.
+//! compactly ([`ObsCodec`]), each sample's return summed over up to n steps of its episode
+//! ([`Returns`]); `file.rs` saves and restores it with a checkpoint.
 
 mod codec;
 mod file;
@@ -32,13 +33,44 @@ pub struct Batch {
     pub obs: Vec<f32>,
     /// `size × 2`, normalized actions in [-1, 1].
     pub actions: Vec<f32>,
-    /// `size`.
+    /// `size`: the return r_t + γ r_t+1 + … + γ^(k−1) r_t+k−1 of the k steps summed
+    /// ([`Returns`]); the reward itself for one-step returns.
     pub rewards: Vec<f32>,
+    /// `size`: γ^k, the discount of the bootstrap from `next_obs`, which is s_t+k.
+    pub discounts: Vec<f32>,
     /// `size × obs_dim`.
     pub next_obs: Vec<f32>,
     /// `size`, 1.0 where the episode terminated (success or collision), else 0.0. A timeout is
     /// not a termination: its target bootstraps from `next_obs`.
     pub terminated: Vec<f32>,
+}
+
+/// How [`ReplayBuffer::sample_into`] forms each sample's return: the rewards of up to `n`
+/// consecutive steps of one episode, discounted by `gamma`, and the bootstrap from the
+/// observation after the last of them (`sac.n_step`, `sac.gamma`).
+///
+/// A sample sums fewer than `n` steps where its episode terminates or times out first, or
+/// where the stored steps of its environment end: steps are linked only inside the batch an
+/// actor sent them in (the next batch starts its own chain), so a chain is cut there and
+/// bootstraps early, which is still a correct k-step target.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Returns {
+    /// Most steps summed; 1 is the one-step target.
+    pub n: usize,
+    /// Discount per step.
+    pub gamma: f32,
+}
+
+impl Returns {
+    /// One-step targets: the reward and γ.
+    pub fn one_step(gamma: f32) -> Self {
+        Self { n: 1, gamma }
+    }
+
+    /// What a run's `[sac]` asks for.
+    pub fn for_config(sac: &dvnav_config::SacConfig) -> Self {
+        Self { n: sac.n_step, gamma: sac.gamma as f32 }
+    }
 }
 
 /// Fixed-capacity FIFO of transitions, each observation stored once.
@@ -75,6 +107,9 @@ pub struct ReplayBuffer {
     /// Transition ring: logical index `i` (0 = oldest) is at `(head + i) % capacity`.
     obs_id: Vec<u64>,
     next_id: Vec<u64>,
+    /// Ring distance to the transition that continues this one's episode from its next
+    /// observation, 0 where none is stored (the episode ended, or the batch did).
+    successor: Vec<u32>,
     actions: Vec<f32>,
     rewards: Vec<f32>,
     terminated: Vec<bool>,
@@ -101,6 +136,7 @@ impl ReplayBuffer {
             oldest_obs: 0,
             obs_id: Vec::new(),
             next_id: Vec::new(),
+            successor: Vec::new(),
             actions: Vec::new(),
             rewards: Vec::new(),
             terminated: Vec::new(),
@@ -136,6 +172,7 @@ impl ReplayBuffer {
         self.scans.capacity() * 2
             + self.extras.capacity() * 4
             + (self.obs_id.capacity() + self.next_id.capacity()) * 8
+            + self.successor.capacity() * 4
             + self.actions.capacity() * 4
             + self.rewards.capacity() * 4
             + self.terminated.capacity()
@@ -171,8 +208,14 @@ impl ReplayBuffer {
                 NextObs::Step(j) => self.store(batch.obs(j as usize)),
                 NextObs::Last(k) => self.store(batch.last_obs(k as usize)),
             };
+            // Transitions are pushed in batch order, so the continuing step is as many places
+            // further along the ring as it is rows further down the batch.
+            let successor = match batch.next[i] {
+                NextObs::Step(j) if later(i) => j - i as u32,
+                _ => 0,
+            };
             let a = [batch.actions[i * ACTION_DIM], batch.actions[i * ACTION_DIM + 1]];
-            self.push(obs, next, a, batch.rewards[i], batch.terminated[i]);
+            self.push(obs, next, successor, a, batch.rewards[i], batch.terminated[i]);
         }
         self.row_ids = row_ids;
     }
@@ -221,7 +264,18 @@ impl ReplayBuffer {
         }
     }
 
-    fn push(&mut self, obs: u64, next: u64, action: [f32; ACTION_DIM], reward: f32, term: bool) {
+    /// Appends one transition. `successor` is the ring distance to the transition that
+    /// continues its episode, pushed later (0: none); evicting oldest first never removes a
+    /// successor before its predecessor.
+    fn push(
+        &mut self,
+        obs: u64,
+        next: u64,
+        successor: u32,
+        action: [f32; ACTION_DIM],
+        reward: f32,
+        term: bool,
+    ) {
         if self.len == self.capacity {
             self.pop_oldest();
         }
@@ -229,12 +283,14 @@ impl ReplayBuffer {
         if j == self.obs_id.len() {
             self.obs_id.push(obs);
             self.next_id.push(next);
+            self.successor.push(successor);
             self.actions.extend_from_slice(&action);
             self.rewards.push(reward);
             self.terminated.push(term);
         } else {
             self.obs_id[j] = obs;
             self.next_id[j] = next;
+            self.successor[j] = successor;
             self.actions[j * ACTION_DIM..(j + 1) * ACTION_DIM].copy_from_slice(&action);
             self.rewards[j] = reward;
             self.terminated[j] = term;
@@ -252,26 +308,49 @@ impl ReplayBuffer {
         (self.head + i) % self.capacity
     }
 
-    /// Samples `size` transitions uniformly with replacement into `out` (reusing its memory).
-    pub fn sample_into(&self, size: usize, rng: &mut impl Rng, out: &mut Batch) {
+    /// Samples `size` transitions uniformly with replacement into `out` (reusing its memory),
+    /// each with its return over up to `returns.n` steps.
+    pub fn sample_into(&self, size: usize, returns: Returns, rng: &mut impl Rng, out: &mut Batch) {
         assert!(!self.is_empty(), "sampling an empty replay buffer");
+        assert!(returns.n >= 1, "an n-step return sums at least one step");
         out.size = size;
         out.obs_dim = self.codec.obs_dim;
         out.obs.clear();
         out.next_obs.clear();
         out.actions.clear();
         out.rewards.clear();
+        out.discounts.clear();
         out.terminated.clear();
         for _ in 0..size {
-            let j = self.position(rng.random_range(0..self.len));
-            let (s, e) = self.stored(self.obs_id[j]);
+            let first = self.position(rng.random_range(0..self.len));
+            let (s, e) = self.stored(self.obs_id[first]);
             self.codec.decode(s, e, &mut out.obs);
-            let (s, e) = self.stored(self.next_id[j]);
+            let a = &self.actions[first * ACTION_DIM..(first + 1) * ACTION_DIM];
+            out.actions.extend_from_slice(a);
+            let (last, ret, discount) = self.n_step_return(first, returns);
+            let (s, e) = self.stored(self.next_id[last]);
             self.codec.decode(s, e, &mut out.next_obs);
-            out.actions.extend_from_slice(&self.actions[j * ACTION_DIM..(j + 1) * ACTION_DIM]);
-            out.rewards.push(self.rewards[j]);
-            out.terminated.push(if self.terminated[j] { 1.0 } else { 0.0 });
+            out.rewards.push(ret);
+            out.discounts.push(discount);
+            out.terminated.push(if self.terminated[last] { 1.0 } else { 0.0 });
         }
+    }
+
+    /// From the transition at ring position `first`: the position of the last step summed,
+    /// Σ γ^i r_t+i over the steps summed, and γ^k for the k steps summed. The sum stops at
+    /// `returns.n` steps, at a termination, or where no continuing step is stored.
+    fn n_step_return(&self, first: usize, returns: Returns) -> (usize, f32, f32) {
+        let (mut j, mut ret, mut discount) = (first, 0.0f32, 1.0f32);
+        for k in 1..=returns.n {
+            ret += discount * self.rewards[j];
+            discount *= returns.gamma;
+            let successor = self.successor[j] as usize;
+            if k == returns.n || self.terminated[j] || successor == 0 {
+                break;
+            }
+            j = (j + successor) % self.capacity;
+        }
+        (j, ret, discount)
     }
 
     /// The `i`-th oldest transition as (obs, action, reward, next_obs, terminated), decoded.
@@ -324,9 +403,12 @@ mod tests {
         assert!(ReplayBuffer::load(&path, ObsCodec::plain(3), 8).is_err(), "another layout");
         let (mut a, mut b) = (Batch::default(), Batch::default());
         let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
-        r.sample_into(16, &mut rng.clone(), &mut a);
-        loaded.sample_into(16, &mut rng, &mut b);
-        assert_eq!(a, b);
+        for n in [1, 3] {
+            let returns = Returns { n, gamma: 0.9 };
+            r.sample_into(16, returns, &mut rng.clone(), &mut a);
+            loaded.sample_into(16, returns, &mut rng, &mut b);
+            assert_eq!(a, b, "{n}-step samples");
+        }
         r.insert(&stream(11, 7));
         loaded.insert(&stream(11, 7));
         assert_eq!(rewards(&r), rewards(&loaded));
@@ -351,8 +433,9 @@ mod tests {
         r.insert(&stream(0, 10));
         let mut rng = rand_pcg::Pcg64::seed_from_u64(0);
         let mut b = Batch::default();
-        r.sample_into(64, &mut rng, &mut b);
+        r.sample_into(64, Returns::one_step(0.9), &mut rng, &mut b);
         assert_eq!(b.obs.len(), 192);
+        assert_eq!(b.discounts, vec![0.9; 64]);
         for i in 0..64 {
             let x = b.rewards[i];
             let ends = (x as usize) % 5 == 4;
@@ -361,6 +444,47 @@ mod tests {
             let term = ends && (x as usize).is_multiple_of(2);
             assert_eq!(b.terminated[i], if term { 1.0 } else { 0.0 });
         }
+    }
+
+    /// The k-step return of step `x` of [`stream`] at γ = 0.5: k, Σ 0.5^i (x + i), and the
+    /// next observation's first value.
+    fn expected_return(x: usize, n: usize, batch_end: usize) -> (usize, f32, f32) {
+        let episode_left = 5 - x % 5;
+        let k = n.min(episode_left).min(batch_end - x);
+        let ret = (0..k).map(|i| 0.5f32.powi(i as i32) * (x + i) as f32).sum();
+        let last = x + k - 1;
+        let next = if last % 5 == 4 { last as f32 + 0.5 } else { last as f32 + 1.0 };
+        (k, ret, next)
+    }
+
+    #[test]
+    fn n_step_samples_sum_their_episodes_rewards_up_to_its_end_or_the_batchs() {
+        // Episodes of 5 steps; the first batch ends inside the third episode (step 12).
+        let mut r = ReplayBuffer::new(ObsCodec::plain(3), 100);
+        r.insert(&stream(0, 13));
+        r.insert(&stream(13, 12));
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
+        let mut b = Batch::default();
+        let mut seen = std::collections::BTreeSet::new();
+        r.sample_into(400, Returns { n: 3, gamma: 0.5 }, &mut rng, &mut b);
+        for i in 0..b.size {
+            let x = b.obs[i * 3] as usize;
+            let (k, ret, next) = expected_return(x, 3, if x < 13 { 13 } else { 25 });
+            assert!((b.rewards[i] - ret).abs() < 1e-5, "step {x}: {} vs {ret}", b.rewards[i]);
+            assert_eq!(b.discounts[i], 0.5f32.powi(k as i32), "step {x}");
+            assert_eq!(b.next_obs[i * 3], next, "step {x}");
+            let last = x + k - 1;
+            let terminated = last % 5 == 4 && last.is_multiple_of(2);
+            assert_eq!(b.terminated[i], if terminated { 1.0 } else { 0.0 }, "step {x}");
+            assert_eq!(b.actions[2 * i..2 * i + 2], [0.1, -0.1]);
+            seen.insert(x);
+        }
+        assert_eq!(seen.len(), 25, "every step sampled");
+        // Spot checks of the rule: a whole 3-step return, one cut by a termination (step 4
+        // is the episode's last), one cut by the batch's end (12 is the first batch's last).
+        assert_eq!(expected_return(0, 3, 13), (3, 0.0 + 0.5 + 0.5, 3.0));
+        assert_eq!(expected_return(3, 3, 13).0, 2);
+        assert_eq!(expected_return(12, 3, 13).0, 1);
     }
 
     #[test]

@@ -4,6 +4,7 @@
 //! | function | equation |
 //! |---|---|
 //! | [`soft_bellman_target`] | Q̂(s,a) = r + γ(1 − d)(min_j Q_φ̂j(s′, ã′) − α log π_θ(ã′|s′)) |
+//! | (n-step, `sac.n_step`) | r and γ become Σ_i<k γ^i r_t+i and γ^k, s′ becomes s_t+k |
 //! | [`critic_loss`] | L(φ_j) = 1/|M| Σ (Q_φj(s,a) − Q̂(s,a))², summed over j = 1, 2 |
 //! | [`actor_loss`] | L(θ) = 1/|M| Σ (α log π_θ(ã|s) − min_j Q_φj(s,ã)) + λ‖θ‖² |
 //! | [`temperature_loss`] | J(α) = 1/|M| Σ −α (log π_θ(ã|s) + H̄) (Haarnoja 2019, eq. 18) |
@@ -23,18 +24,20 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 
 /// Q̂(s,a) = r + γ(1 − d)(min(Q̂1, Q̂2)(s′, ã′) − α log π(ã′|s′)), detached from the graph.
+/// `discount` is γ per row: γ^k for a k-step return in `reward` (the replay's
+/// [`Batch::discounts`]).
 pub fn soft_bellman_target(
     reward: &Tensor,
     terminated: &Tensor,
+    discount: &Tensor,
     next_q1: &Tensor,
     next_q2: &Tensor,
     next_log_prob: &Tensor,
     alpha: f64,
-    gamma: f64,
 ) -> Result<Tensor> {
     let soft_v = (next_q1.minimum(next_q2)? - (next_log_prob * alpha)?)?;
     let not_done = (terminated.neg()? + 1.0)?;
-    (reward + ((not_done * soft_v)? * gamma)?)?.detach().contiguous()
+    (reward + ((not_done * soft_v)? * discount)?)?.detach().contiguous()
 }
 
 /// Sum of the two critics' mean squared errors against the target.
@@ -229,7 +232,7 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
         let shards =
             shards::split(batch, noise.view(), self.action_dim, self.shard_count(), &self.device)?;
         let alpha = self.nets.alpha();
-        let (nets, cfg) = (&self.nets, &self.cfg);
+        let nets = &self.nets;
 
         // Critics: each shard's loss is its share of L(φ1) + L(φ2) over the batch.
         let parts = self.workers.map(&shards, |s| {
@@ -238,11 +241,11 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
             let target = soft_bellman_target(
                 &s.rewards,
                 &s.terminated,
+                &s.discounts,
                 &nets.target1.net.q(&s.next_obs, &next_action)?.detach(),
                 &nets.target2.net.q(&s.next_obs, &next_action)?.detach(),
                 &next.log_prob.detach(),
                 alpha,
-                cfg.gamma,
             )?;
             let q1 = nets.critic1.net.q(&s.obs, &s.actions)?;
             let q2 = nets.critic2.net.q(&s.obs, &s.actions)?;
@@ -435,6 +438,7 @@ mod tests {
             actions: (0..n * 2).map(|i| (i as f32 * 0.37).sin()).collect(),
             rewards: vec![0.1, -0.2, 10.0, -10.0],
             next_obs: (0..n * d).map(|i| 0.4 + (i % 11) as f32 * 0.2).collect(),
+            discounts: vec![0.99; n],
             terminated: vec![0.0, 0.0, 1.0, 1.0],
         }
     }
@@ -478,6 +482,7 @@ mod tests {
             actions: (0..n * 2).map(|i| (i as f32 * 0.37).sin()).collect(),
             rewards: (0..n).map(|i| (i as f32 * 0.9).cos()).collect(),
             next_obs: (0..n * d).map(|i| 0.4 + ((i * 5) % 19) as f32 * 0.2).collect(),
+            discounts: vec![0.99; n],
             terminated: (0..n).map(|i| (i % 5 == 0) as u8 as f32).collect(),
         };
         let weights = |l: &SacLearner| -> Vec<f32> {
@@ -526,7 +531,7 @@ mod tests {
 
     #[test]
     fn radius_input_batches_pass_the_wire_and_the_replay_buffer_into_an_update() {
-        use crate::replay::{ObsCodec, ReplayBuffer};
+        use crate::replay::{ObsCodec, ReplayBuffer, Returns};
         use dvnav_link::core::TransitionBatch;
         use dvnav_link::wire;
         let cfg = dvnav_config::Config::from_toml_str(include_str!("../../../configs/sac_ri.toml"))
@@ -550,7 +555,7 @@ mod tests {
         replay.insert(&tb);
         let mut rng = rand_pcg::Pcg64::seed_from_u64(1);
         let mut batch = Batch::default();
-        replay.sample_into(16, &mut rng, &mut batch);
+        replay.sample_into(16, Returns::for_config(&cfg.sac), &mut rng, &mut batch);
         assert_eq!((batch.size, batch.obs_dim), (16, 545));
         for o in batch.obs.chunks_exact(d) {
             assert!(radii.contains(&o[544]), "the radius is stored exactly: {}", o[544]);
@@ -591,16 +596,38 @@ mod tests {
         let y = soft_bellman_target(
             &t(&[1.0, 1.0]),
             &t(&[0.0, 1.0]),
+            &t(&[0.5, 0.5]),
             &t(&[2.0, 2.0]),
             &t(&[3.0, 3.0]),
             &t(&[-1.0, -1.0]),
             0.1,
-            0.5,
         )
         .unwrap()
         .to_vec1::<f32>()
         .unwrap();
         assert!((y[0] - 2.05).abs() < 1e-6 && (y[1] - 1.0).abs() < 1e-6, "{y:?}");
+    }
+
+    #[test]
+    fn an_n_step_target_discounts_the_bootstrap_by_its_own_gamma_power() {
+        // Rows with k = 1, 2 and 3 steps summed at γ = 0.5: the bootstrap soft V' = 2.1 is
+        // weighed by 0.5, 0.25 and 0.125.
+        let y = soft_bellman_target(
+            &t(&[1.0, 1.5, 1.75]),
+            &t(&[0.0, 0.0, 0.0]),
+            &t(&[0.5, 0.25, 0.125]),
+            &t(&[2.0, 2.0, 2.0]),
+            &t(&[3.0, 3.0, 3.0]),
+            &t(&[-1.0, -1.0, -1.0]),
+            0.1,
+        )
+        .unwrap()
+        .to_vec1::<f32>()
+        .unwrap();
+        let want = [1.0 + 0.5 * 2.1, 1.5 + 0.25 * 2.1, 1.75 + 0.125 * 2.1];
+        for (got, want) in y.iter().zip(want) {
+            assert!((got - want).abs() < 1e-6, "{y:?}");
+        }
     }
 
     #[test]

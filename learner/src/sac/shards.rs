@@ -30,6 +30,8 @@ pub struct Shard {
     pub actions: Tensor,
     /// `(rows,)`.
     pub rewards: Tensor,
+    /// `(rows,)`: γ^k of each row's bootstrap.
+    pub discounts: Tensor,
     /// `(rows,)`.
     pub terminated: Tensor,
     /// ε for the next observations, `(rows, action_dim)`.
@@ -77,6 +79,7 @@ pub fn split(
                 next_obs: rows(&batch.next_obs, d)?,
                 actions: rows(&batch.actions, action_dim)?,
                 rewards: column(&batch.rewards)?,
+                discounts: column(&batch.discounts)?,
                 terminated: column(&batch.terminated)?,
                 eps_next: rows(noise.next, action_dim)?,
                 eps_pi: rows(noise.current, action_dim)?,
@@ -181,6 +184,7 @@ mod tests {
             actions: (0..n * 2).map(|i| -(i as f32)).collect(),
             rewards: (0..n).map(|i| i as f32 * 0.5).collect(),
             next_obs: (0..n * d).map(|i| 1000.0 + i as f32).collect(),
+            discounts: (0..n).map(|i| 0.9 + i as f32 * 0.001).collect(),
             terminated: (0..n).map(|i| (i % 2) as f32).collect(),
         };
         let noise = UpdateNoise {
@@ -209,6 +213,7 @@ mod tests {
         assert_eq!(cat(|s| &s.actions), b.actions);
         assert_eq!(cat(|s| &s.rewards), b.rewards);
         assert_eq!(cat(|s| &s.terminated), b.terminated);
+        assert_eq!(cat(|s| &s.discounts), b.discounts);
         assert_eq!(cat(|s| &s.eps_next), noise.next);
         assert_eq!(cat(|s| &s.eps_pi), noise.current);
     }

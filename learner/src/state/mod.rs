@@ -35,7 +35,7 @@ pub use status::{Ack, ActorCounters, Progress, Readiness, Registration, Stall, S
 use crate::actor_tokens::ActorTokens;
 use crate::curriculum::{Curriculum, CurriculumState};
 use crate::rate_limiter::RateLimiter;
-use crate::replay::{Batch, ObsCodec, ReplayBuffer};
+use crate::replay::{Batch, ObsCodec, ReplayBuffer, Returns};
 use crate::sac::UpdateMetrics;
 use crate::variable_source::VariableSource;
 use dvnav_config::Config;
@@ -589,7 +589,8 @@ impl LearnerState {
 
     /// Samples a training batch.
     pub fn sample(&self, size: usize, rng: &mut impl rand::Rng, out: &mut Batch) {
-        self.replay.lock().expect("replay lock").sample_into(size, rng, out);
+        let returns = Returns::for_config(&self.cfg.sac);
+        self.replay.lock().expect("replay lock").sample_into(size, returns, rng, out);
     }
 
     /// The curriculum's stage, window and history.

@@ -183,11 +183,11 @@ fn soft_bellman_target_matches_the_reference() {
     let y = soft_bellman_target(
         &t(&[1.0, -0.5, 10.0, 0.25]),
         &t(&[0.0, 1.0, 0.0, 0.0]),
+        &t(&[0.99; 4]),
         &t(&[2.0, 3.0, -1.0, 0.7]),
         &t(&[2.5, 1.0, -2.0, 0.6]),
         &t(&[-1.5, 0.3, 2.0, -0.2]),
         0.2,
-        0.99,
     )
     .unwrap();
     assert_close("y", &values(&y), &TARGET_Y, TOL_FUNCTION);
@@ -355,6 +355,7 @@ fn three_full_updates(precision: Precision) -> (Vec<[f64; 5]>, Vec<(String, f64)
         next_obs: observations(0.5),
         actions: (0..BATCH * 2).map(|i| (0.8 * (1.1 * i as f64 + 0.3).sin()) as f32).collect(),
         rewards: vec![0.5, -1.0, 10.0],
+        discounts: vec![cfg.sac.gamma as f32; 3],
         terminated: vec![0.0, 1.0, 0.0],
     };
     let metrics = (0..UPDATE_METRICS.len())

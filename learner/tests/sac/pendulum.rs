@@ -20,6 +20,9 @@ use dvnav_nav::nets::dense;
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, StandardNormal};
 use std::f64::consts::PI;
+
+/// Discount of the pendulum runs (CleanRL's).
+const GAMMA: f32 = 0.99;
 use std::time::Instant;
 
 /// Gym's `Pendulum-v1`: θ = 0 is upright; the reward is −(θ² + 0.1·θ̇² + 0.001·u²) with θ
@@ -162,6 +165,7 @@ impl Replay {
             out.next_obs.extend_from_slice(&self.next_obs[j]);
             out.actions.push(self.actions[j]);
             out.rewards.push(self.rewards[j]);
+            out.discounts.push(GAMMA);
             // Pendulum episodes end by time limit only: never terminated.
             out.terminated.push(0.0);
         }
@@ -183,7 +187,7 @@ fn train(
 ) -> Result<Outcome> {
     let dev = Device::Cpu;
     let cfg = SacConfig {
-        gamma: 0.99,
+        gamma: GAMMA as f64,
         tau: 0.005,
         batch_size: 256,
         actor_lr: 3e-4,
@@ -197,6 +201,7 @@ fn train(
         policy_l2: 0.0,
         updates_per_env_step: 1.0,
         learning_starts: learning_starts as u64,
+        n_step: 1,
     };
     let nets = SacNetworks::build(
         &dev,

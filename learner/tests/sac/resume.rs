@@ -36,6 +36,7 @@ fn batch(cfg: &Config, k: usize) -> Batch {
         actions: (0..n * 2).map(|i| (0.9 * (1.3 * i as f64 + k as f64).sin()) as f32).collect(),
         rewards: (0..n).map(|i| (i as f32 - 2.0) * 0.5).collect(),
         next_obs: (0..n * d).map(|i| x(i, 0.41)).collect(),
+        discounts: vec![0.99; n],
         terminated: (0..n).map(|i| if (i + k).is_multiple_of(4) { 1.0 } else { 0.0 }).collect(),
     }
 }
