@@ -575,7 +575,8 @@ mod tests {
         let cfg = dvnav_config::Config::default();
         let codec = ObsCodec::for_config(&cfg);
         let r = ReplayBuffer::new(codec, 500_000);
-        let per_transition = 2 * 8 + ACTION_DIM * 4 + 4 + 1;
+        // Observation ids, successor, action, reward, terminated.
+        let per_transition = 2 * 8 + 4 + ACTION_DIM * 4 + 4 + 1;
         let bytes = r.obs_capacity * codec.bytes_per_obs() + 500_000 * per_transition;
         assert!(bytes < 700 << 20, "{} MiB", bytes >> 20);
     }
