@@ -62,11 +62,6 @@ pub struct Returns {
 }
 
 impl Returns {
-    /// One-step targets: the reward and γ.
-    pub fn one_step(gamma: f32) -> Self {
-        Self { n: 1, gamma }
-    }
-
     /// What a run's `[sac]` asks for.
     pub fn for_config(sac: &dvnav_config::SacConfig) -> Self {
         Self { n: sac.n_step, gamma: sac.gamma as f32 }
@@ -203,16 +198,12 @@ impl ReplayBuffer {
             let obs = self.store(batch.obs(i));
             debug_assert_eq!(obs, row_ids[i]);
             // A later row's id is handed out before it is stored, further on in this loop.
-            let next = match batch.next[i] {
-                NextObs::Step(j) if later(i) => row_ids[j as usize],
-                NextObs::Step(j) => self.store(batch.obs(j as usize)),
-                NextObs::Last(k) => self.store(batch.last_obs(k as usize)),
-            };
-            // Transitions are pushed in batch order, so the continuing step is as many places
-            // further along the ring as it is rows further down the batch.
-            let successor = match batch.next[i] {
-                NextObs::Step(j) if later(i) => j - i as u32,
-                _ => 0,
+            // Transitions are pushed in batch order, so that row's step (the successor) is as
+            // many places further along the ring as it is rows further down the batch.
+            let (next, successor) = match batch.next[i] {
+                NextObs::Step(j) if later(i) => (row_ids[j as usize], j - i as u32),
+                NextObs::Step(j) => (self.store(batch.obs(j as usize)), 0),
+                NextObs::Last(k) => (self.store(batch.last_obs(k as usize)), 0),
             };
             let a = [batch.actions[i * ACTION_DIM], batch.actions[i * ACTION_DIM + 1]];
             self.push(obs, next, successor, a, batch.rewards[i], batch.terminated[i]);
@@ -433,7 +424,7 @@ mod tests {
         r.insert(&stream(0, 10));
         let mut rng = rand_pcg::Pcg64::seed_from_u64(0);
         let mut b = Batch::default();
-        r.sample_into(64, Returns::one_step(0.9), &mut rng, &mut b);
+        r.sample_into(64, Returns { n: 1, gamma: 0.9 }, &mut rng, &mut b);
         assert_eq!(b.obs.len(), 192);
         assert_eq!(b.discounts, vec![0.9; 64]);
         for i in 0..64 {
