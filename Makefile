@@ -195,7 +195,8 @@ gpu-bin: build-cuda
 	strip -o target/gpu/dvnav $(CUDA_TARGET)/release/dvnav
 
 # On a machine with an NVIDIA GPU (scripts/gpu_check.sh): the CUDA build (or
-# GPU_CHECK_ARGS="--bin PATH"), `dvnav bench learner --device cuda --json` at batch 256 and 128,
+# GPU_CHECK_ARGS="--bin PATH"), `dvnav bench learner --device cuda --json` at batch 256 and 128
+# (and bf16 at 256) alternated with PyTorch on the same GPU where python3 has a CUDA torch,
 # `dvnav train --device cuda --stop-when-skilled` for up to 5 minutes, and the figures in
 # ${OUT:-runs/gpu-check}/.
 gpu-check:

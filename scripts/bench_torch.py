@@ -16,8 +16,12 @@ matmuls and convolutions, fp32 weights and optimizer), PyTorch's own mixed preci
 --peak it also times single 512x512 matrix products at the same threads, fp32 and bf16: the
 CPU's peak as PyTorch reaches it.
 
+With --device cuda the same update runs on an NVIDIA GPU (autocast("cuda") for bf16), the
+clock read after a synchronize: the peer of `dvnav bench learner --device cuda`
+(scripts/gpu_check.sh).
+
 Prints one JSON object. Usage: bench_torch.py [--batch 256] [--threads 1] [--updates 20]
-[--precision fp32|bf16] [--peak]
+[--precision fp32|bf16] [--device cpu|cuda] [--peak]
 Install: python3 -m venv .venv && .venv/bin/pip install torch numpy
 """
 import argparse
@@ -92,16 +96,23 @@ def main():
     p.add_argument("--updates", type=int, default=20)
     p.add_argument("--warmup", type=int, default=3)
     p.add_argument("--precision", choices=["fp32", "bf16"], default="fp32")
+    p.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
     p.add_argument("--peak", action="store_true")
     args = p.parse_args()
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
+    dev = torch.device(args.device)
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        p.error("--device cuda: this PyTorch sees no CUDA GPU")
+    # Timing reads the clock only once the GPU's queued work is done.
+    sync = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
+    torch.set_default_device(dev)
 
     actor, q1, q2 = Actor(), Critic(), Critic()
     t1, t2 = Critic(), Critic()
     t1.load_state_dict(q1.state_dict())
     t2.load_state_dict(q2.state_dict())
-    log_alpha = torch.zeros(1, requires_grad=True)
+    log_alpha = torch.zeros(1, requires_grad=True, device=dev)
     q_opt = torch.optim.Adam(list(q1.parameters()) + list(q2.parameters()), lr=3e-4)
     pi_opt = torch.optim.Adam(actor.parameters(), lr=3e-4)
     a_opt = torch.optim.Adam([log_alpha], lr=3e-4)
@@ -143,13 +154,15 @@ def main():
                 for tp, qp in zip(t.parameters(), q.parameters()):
                     tp.mul_(1 - tau).add_(tau * qp)
 
-    amp = torch.autocast("cpu", dtype=torch.bfloat16, enabled=args.precision == "bf16")
+    amp = torch.autocast(dev.type, dtype=torch.bfloat16, enabled=args.precision == "bf16")
     with amp:
         for i in range(args.warmup):
             update(i)
+        sync()
         start = time.perf_counter()
         for i in range(args.updates):
             update(i)
+        sync()
         secs = time.perf_counter() - start
     out = {
         "torch_sac_updates_per_s": args.updates / secs,
@@ -157,25 +170,32 @@ def main():
         "ms_per_update": 1e3 * secs / args.updates,
         "batch": b,
         "threads": args.threads,
-        "device": "cpu",
+        "device": args.device,
         "torch_version": torch.__version__,
     }
+    if dev.type == "cuda":
+        out["gpu"] = torch.cuda.get_device_name(dev)
     if args.peak:
-        out["torch_gemm_peak_gflops_fp32"] = gemm_gflops(torch.float32)
-        out["torch_gemm_peak_gflops_bf16"] = gemm_gflops(torch.bfloat16)
+        out["torch_gemm_peak_gflops_fp32"] = gemm_gflops(torch.float32, sync)
+        out["torch_gemm_peak_gflops_bf16"] = gemm_gflops(torch.bfloat16, sync)
     print(json.dumps(out))
 
 
-def gemm_gflops(dtype, side=512, seconds=0.5):
-    """GFLOP/s of repeated side^3 products in `dtype` at the threads set."""
+def gemm_gflops(dtype, sync, side=512, seconds=0.5):
+    """GFLOP/s of repeated side^3 products in `dtype` at the threads set (on the default
+    device; `sync` waits for it)."""
     a = torch.rand(side, side).to(dtype)
     b = torch.rand(side, side).to(dtype)
     for _ in range(3):
         torch.mm(a, b)
+    sync()
     done, start = 0, time.perf_counter()
     while done == 0 or time.perf_counter() - start < seconds:
         torch.mm(a, b)
         done += 1
+        if done % 16 == 0:
+            sync()
+    sync()
     return done * 2.0 * side**3 / (time.perf_counter() - start) / 1e9
 
 

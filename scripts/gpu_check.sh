@@ -7,7 +7,10 @@
 #      here with the toolkit from scripts/cuda_toolkit.sh (PyPI), CUDA_COMPUTE_CAP from
 #      nvidia-smi, into target/cuda/ (from scratch: a few minutes on 16 cores, counted in the
 #      budget below);
-#   3. `dvnav bench learner --device cuda --json` at batch 256 and 128;
+#   3. `dvnav bench learner --device cuda --json` at batch 256 and 128 in fp32 and at 256 in
+#      bf16, each cell alternated BENCH_ROUNDS times with the same update in PyTorch on the
+#      same GPU (scripts/bench_torch.py --device cuda; autocast for bf16) where python3 has a
+#      CUDA torch;
 #   4. `dvnav train --device cuda --stop-when-skilled` for at most TRAIN_SECONDS (300 s), fewer
 #      when the build ate into the budget;
 #   5. the figures in $OUT (default runs/gpu-check): summary.json (the headline numbers),
@@ -15,7 +18,8 @@
 #      At most 8 files, flat, so that all of them come back from a borrowed machine.
 #
 # The whole script stays inside GPU_CHECK_BUDGET_S (510 s) so that it fits one 9-minute call.
-# Env: OUT, DVNAV_CUDA_BIN, TRAIN_SECONDS (300), BENCH_UPDATES (500), ACTORS (16 cores: 6),
+# Env: OUT, DVNAV_CUDA_BIN, TRAIN_SECONDS (300), BENCH_UPDATES (500), BENCH_ROUNDS (2),
+# ACTORS (16 cores: 6),
 # GPU_CHECK_RUN (the training run's directory, default runs/gpu-check/train),
 # GPU_CHECK_BUDGET_S (510).
 set -euo pipefail
@@ -98,13 +102,32 @@ fi
 ldd "$bin" 2>&1 | grep 'not found' && die "libraries missing for $bin (above; see $sys)"
 "$bin" --version >>"$sys" 2>&1 || die "$bin does not start: $(tail -n 3 "$sys")"
 
-# 3. SAC updates/s on the GPU.
+# 3. SAC updates/s on the GPU, dvnav and PyTorch alternated cell by cell so that a clock or
+# load change hits both alike. Each line of bench.jsonl carries "who".
+rounds=${BENCH_ROUNDS:-2}
 : >"$out/bench.jsonl"
-for batch in 256 128; do
-    say "bench learner --device cuda --batch $batch --updates $updates"
-    "$bin" bench learner --device cuda --batch "$batch" --updates "$updates" --json \
-        >>"$out/bench.jsonl" 2>>"$sys" || die "bench learner --batch $batch failed: $(tail -n 5 "$sys")"
-    tail -n 1 "$out/bench.jsonl" >&2
+torch_ok=no
+if python3 -c 'import torch, sys; sys.exit(0 if torch.cuda.is_available() else 1)' >>"$sys" 2>&1; then
+    torch_ok=yes
+else
+    say "no CUDA PyTorch in python3: dvnav's figures only"
+fi
+for round in $(seq "$rounds"); do
+    for cell in 256:fp32 128:fp32 256:bf16; do
+        batch=${cell%:*} precision=${cell#*:}
+        say "round $round: bench learner --device cuda --batch $batch --precision $precision"
+        "$bin" bench learner --device cuda --batch "$batch" --precision "$precision" --updates "$updates" --json \
+            2>>"$sys" | python3 -c 'import json,sys; r=json.load(sys.stdin); r["who"]="dvnav"; print(json.dumps(r))' \
+            >>"$out/bench.jsonl" || die "bench learner --batch $batch --precision $precision failed: $(tail -n 5 "$sys")"
+        tail -n 1 "$out/bench.jsonl" >&2
+        if [ "$torch_ok" = yes ]; then
+            python3 scripts/bench_torch.py --device cuda --batch "$batch" --precision "$precision" \
+                --updates "$updates" --warmup 20 2>>"$sys" \
+                | python3 -c 'import json,sys; r=json.load(sys.stdin); r["who"]="torch"; print(json.dumps(r))' \
+                >>"$out/bench.jsonl" || say "PyTorch bench failed (see $sys)"
+            tail -n 1 "$out/bench.jsonl" >&2
+        fi
+    done
 done
 
 # 4. Training on the GPU, inside what is left of the budget (45 s kept for the shutdown).
@@ -142,21 +165,31 @@ def load(p):
             return json.load(f)
     except (OSError, ValueError):
         return None
-bench = {}
+import statistics
+# Per cell ("256/fp32"): each side's figure in every round and their median.
+rows = []
 try:
-    for line in open(os.path.join(out, "bench.jsonl")):
-        if line.strip():
-            r = json.loads(line)
-            bench[str(r["batch"])] = r
+    rows = [json.loads(l) for l in open(os.path.join(out, "bench.jsonl")) if l.strip()]
 except (OSError, ValueError):
     pass
+bench = {}
+for r in rows:
+    rate = r.get("sac_updates_per_s") if r.get("who") == "dvnav" else r.get("torch_sac_updates_per_s")
+    cell = bench.setdefault(f'{r["batch"]}/{r.get("precision", "fp32")}', {})
+    cell.setdefault(r["who"], []).append(rate)
+for cell in bench.values():
+    for who in list(cell):
+        cell[who + "_median"] = statistics.median(cell[who])
+    if "dvnav_median" in cell and "torch_median" in cell:
+        cell["ratio_vs_torch"] = cell["dvnav_median"] / cell["torch_median"]
+inference = {str(r["batch"]): r.get("inference_ms_batch1") for r in rows if r.get("who") == "dvnav"}
 run = load("run_summary.json") or {}
 skilled = run.get("skilled")
 s = {
     "gpu": gpu,
     "build_s": None if build_s == "null" else int(build_s),
-    "sac_updates_per_s": {b: r.get("sac_updates_per_s") for b, r in bench.items()},
-    "inference_ms_batch1": {b: r.get("inference_ms_batch1") for b, r in bench.items()},
+    "sac_updates_per_s": bench,
+    "inference_ms_batch1": inference,
     "train": {
         "actors": int(actors),
         "limit_s": int(train_s),

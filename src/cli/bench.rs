@@ -73,7 +73,8 @@ enum BenchWhat {
         device: String,
         /// Also time the same update in PyTorch (`scripts/bench_torch.py`, same batch and
         /// threads) if Python with torch is found: $DVNAV_TORCH_PYTHON, ./.venv/bin/python3 or
-        /// python3. The Rust figure never depends on it.
+        /// python3; the script: $DVNAV_TORCH_SCRIPT, the checkout this binary was built from,
+        /// or ./scripts/. The Rust figure never depends on it.
         #[arg(long)]
         torch: bool,
         /// With --torch: alternate dvnav and PyTorch this many times and report each side's
@@ -168,6 +169,17 @@ struct TorchFigure {
     torch_gemm_peak_gflops_bf16: Option<f64>,
 }
 
+/// Where `scripts/bench_torch.py` is: $DVNAV_TORCH_SCRIPT, else the checkout this binary was
+/// built from, else the current directory's `scripts/` (a binary carried to another machine,
+/// such as `make gpu-bin`'s, run from a checkout there).
+fn torch_script() -> std::path::PathBuf {
+    if let Some(p) = std::env::var_os("DVNAV_TORCH_SCRIPT") {
+        return p.into();
+    }
+    let built = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/bench_torch.py");
+    if built.exists() { built } else { std::path::PathBuf::from("scripts/bench_torch.py") }
+}
+
 /// Runs `scripts/bench_torch.py` at `precision` (`fp32`, or `bf16` under autocast), with its
 /// matrix-product peaks when `peak`; `Err` says why there is no PyTorch figure.
 fn torch_figure(
@@ -177,7 +189,7 @@ fn torch_figure(
     precision: &str,
     peak: bool,
 ) -> Result<TorchFigure, String> {
-    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/bench_torch.py");
+    let script = torch_script();
     let python = std::env::var("DVNAV_TORCH_PYTHON").ok().unwrap_or_else(|| {
         let venv = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv/bin/python3");
         if venv.exists() { venv.display().to_string() } else { "python3".into() }
