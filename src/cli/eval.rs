@@ -37,7 +37,7 @@ pub struct EvalArgs {
     /// file (`.toml`) or an occupancy-grid map (`.yaml`, `.png`, `.pgm`); repeatable.
     #[arg(long, value_name = "NAME|FILE|MAP")]
     pub room: Vec<String>,
-    /// With `--scenario generated`: the generator kind (clutter, corridors, rooms, paper).
+    /// With `--scenario generated`: the generator kind (clutter, corridors, rooms, paper, walls).
     #[arg(long, value_name = "KIND")]
     pub kind: Option<String>,
     /// With `--scenario generated`: generator seeds A:B (A included, B excluded), one room

@@ -8,6 +8,7 @@
 //! | `corridors` | a corridor network on a jittered grid: a random spanning tree (dead ends) plus a few loops, doors 0.6–1.2 m wide in some corridors | `size` (12 m), `width` (corridor width, drawn from 1.4–2.4 m: a robot of 0.6 m radius fits, not through every door) |
 //! | `rooms` | a grid of rooms joined by doors 0.7–1.2 m wide (every room reachable), furniture inside | `size` (10 m), `furniture` (0–3 pieces per room: 3) |
 //! | `paper` | the paper's training layout (its eight obstacle groups, traps included) placed at random in a room of 5–8 m | `size` (drawn from 5–8 m) |
+//! | `walls` | the gate test's trap at random: a wall across a room of 5–8 m with a narrow gap (0.25–0.7 m) and a wide opening (1.0–1.8 m) elsewhere along it | `size` (drawn from 5–8 m), `gap` (drawn from 0.25–0.7 m) |
 //!
 //! Every kind takes `for_radius` (0.2 m, the meta robot): the generated free space is one
 //! connected region for a disc of that radius (checked on the conservative grid of
@@ -21,6 +22,7 @@ mod clutter;
 mod corridors;
 mod paper;
 mod rooms;
+mod walls;
 
 use super::grid::FreeSpace;
 use super::spec::{ObstacleSpec, RoomSpec};
@@ -32,7 +34,7 @@ use std::collections::BTreeMap;
 pub const PREFIX: &str = "generated:";
 
 /// The generator kinds, in the order `dvnav rooms` lists them.
-pub const KINDS: [&str; 4] = ["clutter", "corridors", "rooms", "paper"];
+pub const KINDS: [&str; 5] = ["clutter", "corridors", "rooms", "paper", "walls"];
 
 /// A parsed generated-room name: kind, seed and parameters.
 #[derive(Clone, Debug, PartialEq)]
@@ -103,6 +105,7 @@ impl Generated {
             "clutter" => &["size", "density", "for_radius"],
             "corridors" => &["size", "width", "for_radius"],
             "rooms" => &["size", "furniture", "for_radius"],
+            "walls" => &["size", "gap", "for_radius"],
             _ => &["size", "for_radius"],
         }
     }
@@ -127,6 +130,7 @@ impl Generated {
             "corridors" => corridors::generate(self, &mut rng)?,
             "rooms" => rooms::generate(self, &mut rng, for_radius)?,
             "paper" => paper::generate(self, &mut rng, for_radius)?,
+            "walls" => walls::generate(self, &mut rng, for_radius)?,
             other => unreachable!("kind `{other}` was checked by parse"),
         };
         spec.name = self.name();
