@@ -184,6 +184,16 @@ for cell in bench.values():
         cell["ratio_vs_torch"] = cell["dvnav_median"] / cell["torch_median"]
 inference = {str(r["batch"]): r.get("inference_ms_batch1") for r in rows if r.get("who") == "dvnav"}
 run = load("run_summary.json") or {}
+def time_at_steps(steps):
+    import csv
+    try:
+        with open(os.path.join(out, "metrics.csv")) as f:
+            for row in csv.DictReader(f):
+                if float(row["env_steps"]) >= steps:
+                    return float(row["time_s"])
+    except (OSError, ValueError, KeyError):
+        pass
+    return run.get("wall_time_s")
 skilled = run.get("skilled")
 s = {
     "gpu": gpu,
@@ -197,9 +207,9 @@ s = {
         "wall_time_s": run.get("wall_time_s"),
         "stage": run.get("stage"),
         "skilled": skilled,
-        # --stop-when-skilled ends the run when the last room is mastered: its wall time is the
-        # time to skill.
-        "time_to_skill_s": run.get("wall_time_s") if skilled else None,
+        # The first metrics row (every 2 s) at or past the skilled step count: --stop-when-skilled
+        # ends the run soon after, but a run stopped by the budget meanwhile would overstate it.
+        "time_to_skill_s": time_at_steps(skilled["env_steps"]) if skilled else None,
         "env_steps_per_s": run.get("env_steps_per_s"),
         "updates_per_s": run.get("updates_per_s"),
         "updates": run.get("updates"),
