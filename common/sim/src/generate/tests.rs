@@ -134,4 +134,6 @@ fn walls_cross_the_room_with_a_gap_and_a_way_round() {
     assert!(spec.description.contains("0.30 m gap"), "{}", spec.description);
     let e = Generated::parse("generated:walls:1:gap=3").unwrap().generate().unwrap_err();
     assert!(e.to_string().contains("`gap` = 3 is outside [0, 2]"), "{e}");
+    let e = Generated::parse("generated:walls:1:for_radius=0.95").unwrap().generate().unwrap_err();
+    assert!(e.to_string().contains("cut the room in two for a robot of radius 0.95"), "{e}");
 }

@@ -74,7 +74,8 @@ pub(super) fn generate(
         if let Some(piece) = place([from, hole[0]], v) {
             anyhow::ensure!(
                 free.try_add(&piece),
-                "room `{}`: a wall piece would close the room; this is a generator bug",
+                "room `{}`: the wall would cut the room in two for a robot of radius {for_radius} \
+                 m (its opening is {opening} m wide); use a smaller for_radius",
                 g.name()
             );
             spec.obstacles.push(piece);
