@@ -71,8 +71,8 @@ enum BenchWhat {
         /// `cpu`, or `cuda` / `cuda:N` (a build with `--features cuda`).
         #[arg(long, default_value = "cpu")]
         device: String,
-        /// Also time the same update in PyTorch (`scripts/bench_torch.py`, same batch and
-        /// threads) if Python with torch is found: $DVNAV_TORCH_PYTHON, ./.venv/bin/python3 or
+        /// Also time the same update in PyTorch (`scripts/bench_torch.py`, same batch,
+        /// threads and device) if Python with torch is found: $DVNAV_TORCH_PYTHON, ./.venv/bin/python3 or
         /// python3; the script: $DVNAV_TORCH_SCRIPT, the checkout this binary was built from,
         /// or ./scripts/. The Rust figure never depends on it.
         #[arg(long)]
@@ -181,13 +181,15 @@ fn torch_script() -> std::path::PathBuf {
 }
 
 /// Runs `scripts/bench_torch.py` at `precision` (`fp32`, or `bf16` under autocast), with its
-/// matrix-product peaks when `peak`; `Err` says why there is no PyTorch figure.
+/// matrix-product peaks when `peak`, on the GPU when `cuda`; `Err` says why there is no
+/// PyTorch figure.
 fn torch_figure(
     batch: usize,
     threads: usize,
     updates: usize,
     precision: &str,
     peak: bool,
+    cuda: bool,
 ) -> Result<TorchFigure, String> {
     let script = torch_script();
     let python = std::env::var("DVNAV_TORCH_PYTHON").ok().unwrap_or_else(|| {
@@ -200,6 +202,10 @@ fn torch_figure(
         .args(["--updates", &updates.to_string(), "--precision", precision]);
     if peak {
         cmd.arg("--peak");
+    }
+    if cuda {
+        // The peer on the same device: PyTorch on its first GPU.
+        cmd.args(["--device", "cuda"]);
     }
     let out = cmd.output().map_err(|e| format!("cannot run {python}: {e}"))?;
     if !out.status.success() {
@@ -229,6 +235,7 @@ fn alternate_with_torch(
     dev: &dvnav_learner::device::Device,
 ) -> anyhow::Result<TorchSide> {
     let (batch, threads, updates) = (r.batch, r.threads, r.updates);
+    let cuda = !dev.is_cpu();
     // The later rounds time the update alone: the peak is the first round's.
     let run = dvnav_learner::bench::UpdateBench { warmup: 1, measure_peak: false, ..run.clone() };
     let (mut ours, mut fp32, mut bf16) = (vec![r.sac_updates_per_s], Vec::new(), Vec::new());
@@ -238,7 +245,7 @@ fn alternate_with_torch(
             let again = dvnav_learner::bench::sac_updates(cfg, &run, dev)?;
             ours.push(again.sac_updates_per_s);
         }
-        match torch_figure(batch, threads, updates, "fp32", round == 0) {
+        match torch_figure(batch, threads, updates, "fp32", round == 0, cuda) {
             Ok(v) => {
                 fp32.push(v.torch_sac_updates_per_s);
                 if round == 0 {
@@ -251,7 +258,7 @@ fn alternate_with_torch(
                 break;
             }
         }
-        match torch_figure(batch, threads, updates, "bf16", false) {
+        match torch_figure(batch, threads, updates, "bf16", false, cuda) {
             Ok(v) => bf16.push(v.torch_sac_updates_per_s),
             Err(why) => eprintln!("PyTorch bf16 autocast skipped: {why}"),
         }
