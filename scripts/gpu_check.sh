@@ -121,11 +121,14 @@ for round in $(seq "$rounds"); do
             >>"$out/bench.jsonl" || die "bench learner --batch $batch --precision $precision failed: $(tail -n 5 "$sys")"
         tail -n 1 "$out/bench.jsonl" >&2
         if [ "$torch_ok" = yes ]; then
-            python3 scripts/bench_torch.py --device cuda --batch "$batch" --precision "$precision" \
+            if python3 scripts/bench_torch.py --device cuda --batch "$batch" --precision "$precision" \
                 --updates "$updates" --warmup 20 2>>"$sys" \
                 | python3 -c 'import json,sys; r=json.load(sys.stdin); r["who"]="torch"; print(json.dumps(r))' \
-                >>"$out/bench.jsonl" || say "PyTorch bench failed (see $sys)"
-            tail -n 1 "$out/bench.jsonl" >&2
+                    >>"$out/bench.jsonl"; then
+                tail -n 1 "$out/bench.jsonl" >&2
+            else
+                say "PyTorch bench failed (see $sys)"
+            fi
         fi
     done
 done
