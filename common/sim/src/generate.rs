@@ -121,6 +121,24 @@ impl Generated {
         Ok(v)
     }
 
+    /// A parameter given in the name, checked to lie in `[lo, hi]`, or else one drawn from
+    /// `drawn` and rounded to whole centimetres (so the room's description reads well).
+    fn param_or_drawn(
+        &self,
+        key: &str,
+        lo: f64,
+        hi: f64,
+        drawn: std::ops::RangeInclusive<f64>,
+        rng: &mut impl rand::Rng,
+    ) -> anyhow::Result<f64> {
+        if self.params.contains_key(key) {
+            // Given, so the default is never read.
+            self.param(key, lo, lo, hi)
+        } else {
+            Ok(cm(rng.random_range(drawn)))
+        }
+    }
+
     /// The room.
     pub fn generate(&self) -> anyhow::Result<RoomSpec> {
         let mut rng = Pcg64::seed_from_u64(stream_seed(&self.kind, self.seed));
@@ -153,6 +171,11 @@ fn stream_seed(kind: &str, seed: u64) -> u64 {
     kind.bytes().fold(seed ^ 0x9e37_79b9_7f4a_7c15, |h, b| {
         (h ^ b as u64).wrapping_mul(0x0100_0000_01b3).rotate_left(17)
     })
+}
+
+/// `x` in whole centimetres: generated sizes that read well in names and descriptions.
+fn cm(x: f64) -> f64 {
+    (x * 100.0).round() / 100.0
 }
 
 /// An axis-aligned box from its corners (m), or `None` when it is empty.

@@ -19,11 +19,7 @@ pub(super) fn generate(
     rng: &mut impl Rng,
     for_radius: f64,
 ) -> anyhow::Result<RoomSpec> {
-    let side = match g.params.get("size") {
-        Some(_) => g.param("size", 8.0, 4.0, 20.0)?,
-        // Whole centimetres, so the name's room reads well in tables.
-        None => (rng.random_range(5.0..=8.0f64) * 100.0).round() / 100.0,
-    };
+    let side = g.param_or_drawn("size", 4.0, 20.0, 5.0..=8.0, rng)?;
     let layout = builtin_specs()
         .into_iter()
         .find(|s| s.name == "env0")

@@ -5,7 +5,7 @@
 //! behind the wall then asks for what the gate test asks: judge the gap, and when it is too
 //! narrow, leave the straight line for the detour.
 
-use super::{Generated, aa_box};
+use super::{Generated, aa_box, cm};
 use crate::grid::FreeSpace;
 use crate::spec::{ObstacleSpec, RoomSpec};
 use rand::Rng;
@@ -20,14 +20,8 @@ pub(super) fn generate(
     rng: &mut impl Rng,
     for_radius: f64,
 ) -> anyhow::Result<RoomSpec> {
-    let side = match g.params.get("size") {
-        Some(_) => g.param("size", 6.0, 4.0, 20.0)?,
-        None => cm(rng.random_range(5.0..=8.0)),
-    };
-    let gap = match g.params.get("gap") {
-        Some(_) => g.param("gap", 0.5, 0.0, 2.0)?,
-        None => cm(rng.random_range(0.25..=0.7)),
-    };
+    let side = g.param_or_drawn("size", 4.0, 20.0, 5.0..=8.0, rng)?;
+    let gap = g.param_or_drawn("gap", 0.0, 2.0, 0.25..=0.7, rng)?;
     let h = side / 2.0;
     // Wall coordinates: u along the wall, v across it; `vertical` swaps them into the room's
     // (x, y), `flip` mirrors u, so the opening lies left or right, below or above.
@@ -83,9 +77,4 @@ pub(super) fn generate(
         from = hole[1];
     }
     Ok(spec)
-}
-
-/// Whole centimetres, so that the room's description reads well.
-fn cm(x: f64) -> f64 {
-    (x * 100.0).round() / 100.0
 }
