@@ -16,7 +16,7 @@ use crate::episode_logger::EpisodeSelector;
 use candle_core::{Device, Tensor};
 use dvnav_config::Config;
 use dvnav_link::core::{Adder, EpisodeStats, VariableSource};
-use dvnav_nav::control::{action_to_velocity, pid_velocity, velocity_to_action};
+use dvnav_nav::control::{action_to_velocity, expert_command, pid_velocity, velocity_to_action};
 use dvnav_nav::weights::PolicyHandle;
 use dvnav_sim::obs::{ACTION_DIM, GOAL_ANGLE, GOAL_DISTANCE};
 use dvnav_sim::room_set::RoomSet;
@@ -96,6 +96,9 @@ impl RoomCache {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Driver {
     Pid,
+    /// The planner expert (`warmup.expert_share`): the PID controller on the planned path's
+    /// subgoal.
+    Expert,
     Policy,
 }
 
@@ -114,8 +117,11 @@ pub struct LoopCounters {
     pub env_steps: u64,
     /// Episodes finished.
     pub episodes: u64,
-    /// Episodes driven by the PID controller.
+    /// Episodes driven by the PID controller or the planner expert (not the policy).
     pub warmup_episodes: u64,
+    /// Of those, episodes driven by the planner expert (`warmup.expert_share`).
+    #[serde(default)]
+    pub expert_episodes: u64,
     /// Episodes written to MCAP.
     pub logged_episodes: u64,
     /// MCAP write errors survived (disk full, unwritable directory); the actor goes on.
@@ -299,13 +305,30 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
     ) -> anyhow::Result<EpisodeInfo> {
         let id = self.next_episode_id;
         self.next_episode_id += 1;
-        let driver = if warmup { Driver::Pid } else { Driver::Policy };
+        let driver = self.driver(i, warmup);
         let mut logged = false;
         if let Some(l) = self.logger.as_mut() {
             let env = &self.envs.envs()[i];
             logged = l.maybe_begin(i, id, env, &self.cfg)?;
         }
         Ok(EpisodeInfo { id, stage, driver, logged })
+    }
+
+    /// Who drives environment `i`'s new episode. With `warmup.expert_share` > 0 the planner
+    /// expert drives the warm-up (where a path was planned) and that share of the later
+    /// episodes; drawn only then, so runs without an expert keep their seeds' streams.
+    fn driver(&mut self, i: usize, warmup: bool) -> Driver {
+        let share = self.cfg.warmup.expert_share;
+        if share <= 0.0 {
+            return if warmup { Driver::Pid } else { Driver::Policy };
+        }
+        let planned = self.envs.envs()[i].planned_subgoal().is_some();
+        match (warmup, planned) {
+            (true, true) => Driver::Expert,
+            (true, false) => Driver::Pid,
+            (false, true) if self.rng.random_bool(share) => Driver::Expert,
+            (false, _) => Driver::Policy,
+        }
     }
 
     /// One step of every environment. Returns false when the learner says stop.
@@ -357,7 +380,7 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
         let d = self.cfg.obs_dim();
         for (i, out) in outcomes.iter().enumerate() {
             let info = self.episodes[i].clone();
-            let acted_version = if info.driver == Driver::Pid { 0 } else { version };
+            let acted_version = if info.driver == Driver::Policy { version } else { 0 };
             let terminated = out.done.is_some_and(|o| o.is_terminal());
             let truncated = out.done == Some(Outcome::Timeout);
             self.adder.add(
@@ -392,7 +415,8 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
                     steps: env.steps(),
                     episode_return: env.episode_return() as f32,
                     policy_version: acted_version,
-                    warmup: info.driver == Driver::Pid,
+                    // Not the policy's episode: kept out of the curriculum's success rate.
+                    warmup: info.driver != Driver::Policy,
                     varied: env.dvst_scale() != 1.0,
                 };
                 if info.logged {
@@ -433,6 +457,9 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
                 if stats.warmup {
                     self.counters.warmup_episodes += 1;
                 }
+                if info.driver == Driver::Expert {
+                    self.counters.expert_episodes += 1;
+                }
                 self.adder.add_episode(stats)?;
                 let stage = self.pick_stage();
                 let room = self.stage_room(stage)?;
@@ -447,8 +474,8 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
         Ok(true)
     }
 
-    /// Fills `self.actions`: the PID controller for warm-up episodes, a sample from the policy
-    /// (one batched forward pass) for the others.
+    /// Fills `self.actions`: the PID controller for warm-up episodes, the planner expert for
+    /// its episodes, a sample from the policy (one batched forward pass) for the others.
     fn choose_actions(&mut self) -> anyhow::Result<()> {
         let d = self.cfg.obs_dim();
         let beams = self.cfg.env.lidar.beams;
@@ -469,6 +496,15 @@ impl<A: Adder, V: VariableSource> EnvironmentLoop<A, V> {
             let o = &self.obs[i * d..(i + 1) * d];
             self.actions[i] = match (self.episodes[i].driver, &policy_actions) {
                 (Driver::Policy, Some(acts)) => [acts[i][0], acts[i][1]],
+                (Driver::Expert, _) => {
+                    let env = &self.envs.envs()[i];
+                    // Without a path (it had one when the episode began) the PID on the goal.
+                    let (v, w) = expert_command(env, &self.cfg.warmup).unwrap_or_else(|| {
+                        let (d, a) = (o[beams + GOAL_DISTANCE], o[beams + GOAL_ANGLE]);
+                        pid_velocity(d as f64, a as f64, &self.cfg.warmup, &self.cfg.env)
+                    });
+                    velocity_to_action(v, w, &self.cfg.env)
+                }
                 // PID episodes, and policy episodes before any weights arrived.
                 _ => {
                     let (v, w) = pid_velocity(

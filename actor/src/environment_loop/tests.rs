@@ -281,6 +281,41 @@ fn warmup_episodes_use_the_pid_controller() {
     assert!(b.episodes.iter().all(|e| e.warmup));
 }
 
+/// `warmup.expert_share`: the planner expert drives that share of the policy's episodes (all
+/// of them at 1, none at 0), acting as the PID does (weight version 0, not counted towards
+/// the curriculum), and reaches goals behind walls the untrained policy does not.
+#[test]
+fn the_planner_expert_drives_its_share_of_episodes() {
+    let run_with = |share: f64| {
+        let mut cfg = Config::default();
+        cfg.actor.envs = 3;
+        cfg.curriculum.rooms = vec!["generated:walls:0..10".into()];
+        cfg.env.subgoals =
+            Some(dvnav_sim::subgoal::SubgoalConfig { follow_share: 0.0, ..Default::default() });
+        cfg.warmup.expert_share = share;
+        let mut el = fixed_loop(cfg, 3, 0, false, 4);
+        let mut n = 0;
+        el.run(|_| {
+            n += 1;
+            n <= 1500
+        })
+        .unwrap();
+        let (adder, c) = el.finish().unwrap();
+        (adder.batch, c)
+    };
+    let (b, c) = run_with(1.0);
+    assert!(c.episodes >= 6, "{c:?}");
+    assert_eq!((c.expert_episodes, c.warmup_episodes), (c.episodes, c.episodes));
+    assert!(b.policy_versions.iter().all(|&v| v == 0));
+    assert!(b.episodes.iter().all(|e| e.warmup));
+    let expert_rate = c.successes as f64 / c.episodes as f64;
+    let (b, c) = run_with(0.0);
+    assert_eq!((c.expert_episodes, c.warmup_episodes), (0, 0));
+    assert!(b.policy_versions.iter().all(|&v| v == 3));
+    let policy_rate = c.successes as f64 / c.episodes.max(1) as f64;
+    assert!(expert_rate >= 0.8 && expert_rate > policy_rate, "{expert_rate} {policy_rate}");
+}
+
 #[test]
 fn same_seed_gives_identical_transitions() {
     let (a, _) = run(false, 80, 21);

@@ -331,11 +331,27 @@ pub struct WarmupConfig {
     pub kp_linear: f64,
     /// ω = clip(kp_angular · y_g, −ω_max, ω_max).
     pub kp_angular: f64,
+    /// Share of the episodes after the warm-up (drawn per episode) driven by the planner
+    /// expert: the PID controller aimed at the subgoal on the episode's planned path
+    /// (`[env.subgoals]`, which it needs), while the agent observes what it would observe (the
+    /// final goal in a mapless episode). Its transitions go to the replay buffer like the
+    /// warm-up's, so the critics see detours round walls that the policy itself has not found.
+    /// 0 (the default): none.
+    pub expert_share: f64,
+    /// The planner expert turns in place while its subgoal is more than this many degrees off
+    /// its heading.
+    pub expert_turn_deg: f64,
 }
 
 impl Default for WarmupConfig {
     fn default() -> Self {
-        Self { pid_episodes: 100, kp_linear: 1.0, kp_angular: 10.0 }
+        Self {
+            pid_episodes: 100,
+            kp_linear: 1.0,
+            kp_angular: 10.0,
+            expert_share: 0.0,
+            expert_turn_deg: 45.0,
+        }
     }
 }
 
@@ -668,6 +684,26 @@ impl Config {
         }
         positive("warmup.kp_linear", self.warmup.kp_linear)?;
         positive("warmup.kp_angular", self.warmup.kp_angular)?;
+        let w = &self.warmup;
+        if !(0.0..=1.0).contains(&w.expert_share) {
+            return Err(bad(
+                "warmup.expert_share",
+                format!("must be in [0, 1], not {}", w.expert_share),
+            ));
+        }
+        if w.expert_share > 0.0 && self.env.subgoals.is_none() {
+            return Err(bad(
+                "warmup.expert_share",
+                "the planner expert follows each episode's planned path: add an [env.subgoals] \
+                 table (follow_share = 0 keeps every episode mapless)",
+            ));
+        }
+        if !(w.expert_turn_deg > 0.0 && w.expert_turn_deg < 180.0) {
+            return Err(bad(
+                "warmup.expert_turn_deg",
+                format!("must lie in (0, 180), not {}", w.expert_turn_deg),
+            ));
+        }
         let c = &self.curriculum;
         if c.rooms.is_empty() {
             return Err(bad("curriculum.rooms", "needs at least one room"));
@@ -995,6 +1031,25 @@ mod tests {
         let big = "[env]\nradius_input = true\nradius_range = [0.2, 2.45]\n\
                    [curriculum]\nrooms = [\"sac_ri\"]\n";
         Config::from_toml_str(big).unwrap();
+    }
+
+    #[test]
+    fn the_planner_expert_needs_subgoals_and_a_share_in_range() {
+        let refused = |text: &str, key: &str, words: &str| {
+            let e = Config::from_toml_str(text).unwrap_err();
+            assert_eq!(e.key, key, "{e}");
+            assert!(e.to_string().contains(words), "{e}");
+        };
+        refused("[warmup]\nexpert_share = 0.2\n", "warmup.expert_share", "[env.subgoals]");
+        let sub = "[env.subgoals]\nfollow_share = 0.0\n";
+        refused(&format!("[warmup]\nexpert_share = 1.5\n{sub}"), "warmup.expert_share", "[0, 1]");
+        refused(
+            &format!("[warmup]\nexpert_share = 0.2\nexpert_turn_deg = 0\n{sub}"),
+            "warmup.expert_turn_deg",
+            "(0, 180)",
+        );
+        let ok = Config::from_toml_str(&format!("[warmup]\nexpert_share = 0.2\n{sub}")).unwrap();
+        assert_eq!(ok.warmup.expert_share, 0.2);
     }
 
     #[test]

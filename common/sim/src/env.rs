@@ -689,6 +689,13 @@ impl NavEnv {
         self.route.as_ref().filter(|r| r.follow()).map(RouteState::subgoal)
     }
 
+    /// The lookahead point on this episode's planned path (`env.subgoals`), whether or not the
+    /// agent observes it: what the planner expert steers for. `None` without subgoals, or when
+    /// no path was found (the robot can only head for the final goal).
+    pub fn planned_subgoal(&self) -> Option<[f64; 2]> {
+        self.route.as_ref().filter(|r| r.path().is_some()).map(RouteState::subgoal)
+    }
+
     /// The reward's d_t: the path left along the plan when following one, else the straight
     /// distance to the goal.
     fn progress_distance(&self) -> f64 {
