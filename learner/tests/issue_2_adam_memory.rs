@@ -32,6 +32,7 @@ fn memory_stays_flat_over_many_updates() {
         next_obs: (0..n * d).map(|i| 0.35 + (i % 19) as f32 * 0.25).collect(),
         discounts: vec![0.99; n],
         terminated: (0..n).map(|i| (i % 7 == 0) as u8 as f32).collect(),
+        demonstrated: vec![0.0; n],
     };
     let nets = SacNetworks::new(&cfg, 1, &Device::Cpu).unwrap();
     let mut learner = SacLearner::new(nets, cfg.sac.clone(), Device::Cpu, 1).unwrap();

@@ -143,6 +143,12 @@ pub struct SacConfig {
     /// at the cost of bias from the off-policy steps in between (no correction, as in
     /// Rainbow and D4PG).
     pub n_step: usize,
+    /// Weight λ_BC of a behaviour-cloning term in the policy loss on the transitions a
+    /// controller chose (the PID warm-up, the planner expert of `warmup.expert_share`), kept
+    /// only where the critics rate the controller's action above the policy's (the Q-filter of
+    /// Nair et al. 2018): + λ_BC · mean(m · ‖tanh μ_θ(s) − a‖²). 0 (the default): the paper's
+    /// loss.
+    pub bc_weight: f64,
 }
 
 impl Default for SacConfig {
@@ -162,6 +168,7 @@ impl Default for SacConfig {
             updates_per_env_step: 0.25,
             learning_starts: 2_000,
             n_step: 1,
+            bc_weight: 0.0,
         }
     }
 }
@@ -625,6 +632,7 @@ impl Config {
             return Err(bad("sac.policy_delay", "must be at least 1"));
         }
         non_negative("sac.policy_l2", s.policy_l2)?;
+        non_negative("sac.bc_weight", s.bc_weight)?;
         positive("sac.updates_per_env_step", s.updates_per_env_step)?;
         if !(1..=MAX_N_STEP).contains(&s.n_step) {
             return Err(bad(

@@ -8,7 +8,8 @@
 //! The format is unchanged since the buffer paired observations by hash: its `pending` array
 //! (the unclaimed `next_obs` awaiting their successor) is now written empty, and read (and
 //! checked) but not used, since batches pair their own observations by position. Files of
-//! either kind load.
+//! either kind load. The `demonstrated` flags (which actions a controller chose) came later
+//! and are optional: a file without them loads with every action the policy's.
 
 use super::{ObsCodec, ReplayBuffer};
 use dvnav_sim::obs::ACTION_DIM;
@@ -41,11 +42,13 @@ impl ReplayBuffer {
             .collect();
         let rewards: Vec<f32> = order.iter().map(|&j| self.rewards[j]).collect();
         let terminated: Vec<u8> = order.iter().map(|&j| self.terminated[j] as u8).collect();
+        let demonstrated: Vec<u8> = order.iter().map(|&j| self.demonstrated[j] as u8).collect();
         // Kept for the format (see the module docs).
         let pending: Vec<u64> = Vec::new();
         let n = self.len;
         let tensors = [
             ("actions", Slot::new(Dtype::F32, vec![n, ACTION_DIM], le(&actions))),
+            ("demonstrated", Slot::new(Dtype::U8, vec![n], demonstrated)),
             ("extras", Slot::new(Dtype::F32, vec![n_obs, e], le(&extras))),
             ("next_id", Slot::new(Dtype::U64, vec![n], le(&next_id))),
             ("obs_id", Slot::new(Dtype::U64, vec![n], le(&obs_id))),
@@ -97,6 +100,10 @@ impl ReplayBuffer {
         let actions: Vec<f32> = from_le(&read("actions", Dtype::F32)?);
         let rewards: Vec<f32> = from_le(&read("rewards", Dtype::F32)?);
         let terminated = read("terminated", Dtype::U8)?;
+        let demonstrated = match st.names().contains(&"demonstrated") {
+            true => read("demonstrated", Dtype::U8)?,
+            false => vec![0; rewards.len()],
+        };
 
         let (s, e, n) = (codec.scan_len, codec.extra_len(), rewards.len());
         let n_obs = scans.len().checked_div(s).unwrap_or(extras.len() / e.max(1));
@@ -110,6 +117,7 @@ impl ReplayBuffer {
                 && next_id.len() == n
                 && actions.len() == n * ACTION_DIM
                 && terminated.len() == n
+                && demonstrated.len() == n
                 && obs_id.iter().chain(&next_id).chain(&pending).all(|&id| (id as usize) < n_obs),
             "{at}: inconsistent replay arrays"
         );
@@ -125,8 +133,13 @@ impl ReplayBuffer {
                 Some(&j) if j > i => (j - i) as u32,
                 _ => 0,
             };
-            let a = [actions[2 * i], actions[2 * i + 1]];
-            buffer.push(obs_id[i], next_id[i], successor, a, rewards[i], terminated[i] != 0);
+            let step = super::Step {
+                action: [actions[2 * i], actions[2 * i + 1]],
+                reward: rewards[i],
+                terminated: terminated[i] != 0,
+                demonstrated: demonstrated[i] != 0,
+            };
+            buffer.push(obs_id[i], next_id[i], successor, step);
         }
         Ok(buffer)
     }

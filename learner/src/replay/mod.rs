@@ -43,6 +43,9 @@ pub struct Batch {
     /// `size`, 1.0 where the episode terminated (success or collision), else 0.0. A timeout is
     /// not a termination: its target bootstraps from `next_obs`.
     pub terminated: Vec<f32>,
+    /// `size`, 1.0 where a controller chose the action (the PID warm-up, the planner expert:
+    /// weight version 0), else 0.0: what `sac.bc_weight` clones.
+    pub demonstrated: Vec<f32>,
 }
 
 /// How [`ReplayBuffer::sample_into`] forms each sample's return: the rewards of up to `n`
@@ -66,6 +69,16 @@ impl Returns {
     pub fn for_config(sac: &dvnav_config::SacConfig) -> Self {
         Self { n: sac.n_step, gamma: sac.gamma as f32 }
     }
+}
+
+/// What a stored transition did, beside the observations it refers to.
+#[derive(Clone, Copy, Debug)]
+struct Step {
+    action: [f32; ACTION_DIM],
+    reward: f32,
+    terminated: bool,
+    /// A controller chose the action, not the policy.
+    demonstrated: bool,
 }
 
 /// Fixed-capacity FIFO of transitions, each observation stored once.
@@ -108,6 +121,8 @@ pub struct ReplayBuffer {
     actions: Vec<f32>,
     rewards: Vec<f32>,
     terminated: Vec<bool>,
+    /// A controller chose the action (weight version 0).
+    demonstrated: Vec<bool>,
     head: usize,
     len: usize,
     /// Encoding scratch, kept to avoid two allocations per observation.
@@ -135,6 +150,7 @@ impl ReplayBuffer {
             actions: Vec::new(),
             rewards: Vec::new(),
             terminated: Vec::new(),
+            demonstrated: Vec::new(),
             head: 0,
             len: 0,
             scratch: (Vec::new(), Vec::new()),
@@ -171,6 +187,7 @@ impl ReplayBuffer {
             + self.actions.capacity() * 4
             + self.rewards.capacity() * 4
             + self.terminated.capacity()
+            + self.demonstrated.capacity()
     }
 
     /// Appends every transition of a validated batch, dropping the oldest when full. Each
@@ -206,7 +223,13 @@ impl ReplayBuffer {
                 NextObs::Last(k) => (self.store(batch.last_obs(k as usize)), 0),
             };
             let a = [batch.actions[i * ACTION_DIM], batch.actions[i * ACTION_DIM + 1]];
-            self.push(obs, next, successor, a, batch.rewards[i], batch.terminated[i]);
+            let step = Step {
+                action: a,
+                reward: batch.rewards[i],
+                terminated: batch.terminated[i],
+                demonstrated: batch.policy_versions[i] == 0,
+            };
+            self.push(obs, next, successor, step);
         }
         self.row_ids = row_ids;
     }
@@ -258,15 +281,8 @@ impl ReplayBuffer {
     /// Appends one transition. `successor` is the ring distance to the transition that
     /// continues its episode, pushed later (0: none); evicting oldest first never removes a
     /// successor before its predecessor.
-    fn push(
-        &mut self,
-        obs: u64,
-        next: u64,
-        successor: u32,
-        action: [f32; ACTION_DIM],
-        reward: f32,
-        term: bool,
-    ) {
+    fn push(&mut self, obs: u64, next: u64, successor: u32, step: Step) {
+        let Step { action, reward, terminated: term, demonstrated } = step;
         if self.len == self.capacity {
             self.pop_oldest();
         }
@@ -278,6 +294,7 @@ impl ReplayBuffer {
             self.actions.extend_from_slice(&action);
             self.rewards.push(reward);
             self.terminated.push(term);
+            self.demonstrated.push(demonstrated);
         } else {
             self.obs_id[j] = obs;
             self.next_id[j] = next;
@@ -285,6 +302,7 @@ impl ReplayBuffer {
             self.actions[j * ACTION_DIM..(j + 1) * ACTION_DIM].copy_from_slice(&action);
             self.rewards[j] = reward;
             self.terminated[j] = term;
+            self.demonstrated[j] = demonstrated;
         }
         self.len += 1;
     }
@@ -312,6 +330,7 @@ impl ReplayBuffer {
         out.rewards.clear();
         out.discounts.clear();
         out.terminated.clear();
+        out.demonstrated.clear();
         for _ in 0..size {
             let first = self.position(rng.random_range(0..self.len));
             let (s, e) = self.stored(self.obs_id[first]);
@@ -324,6 +343,7 @@ impl ReplayBuffer {
             out.rewards.push(ret);
             out.discounts.push(discount);
             out.terminated.push(if self.terminated[last] { 1.0 } else { 0.0 });
+            out.demonstrated.push(if self.demonstrated[first] { 1.0 } else { 0.0 });
         }
     }
 
@@ -365,14 +385,15 @@ mod tests {
 
     /// Transitions `start..start + n` of one stream of 5-step episodes: `obs` of a step is the
     /// previous step's `next_obs` inside an episode. Observation `[x; 3]` for step x; rewards
-    /// are x.
+    /// are x; every third step's action is a controller's (weight version 0).
     fn stream(start: usize, n: usize) -> TransitionBatch {
         let mut b = TransitionBatch::with_capacity(3, n);
         for i in start..start + n {
             let x = i as f32;
             let last = i % 5 == 4;
             let next = if last { [x + 0.5; 3] } else { [x + 1.0; 3] };
-            b.push(&[x; 3], [0.1, -0.1], x, &next, last && i % 2 == 0, last && i % 2 == 1, 1);
+            let version = if i % 3 == 0 { 0 } else { 1 };
+            b.push(&[x; 3], [0.1, -0.1], x, &next, last && i % 2 == 0, last && i % 2 == 1, version);
         }
         b
     }
@@ -409,6 +430,36 @@ mod tests {
         }
     }
 
+    /// A file saved before the `demonstrated` flags loads with every action the policy's.
+    #[test]
+    fn a_file_without_demonstration_flags_loads_as_the_policys_actions() {
+        let dir = tempfile::tempdir().unwrap();
+        let (path, old) = (dir.path().join("new.safetensors"), dir.path().join("old.safetensors"));
+        let codec = ObsCodec::plain(3);
+        let mut r = ReplayBuffer::new(codec, 8);
+        r.insert(&stream(0, 6));
+        r.save(&path).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let (_, header) = safetensors::SafeTensors::read_metadata(&bytes).unwrap();
+        let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+        let kept: Vec<_> =
+            st.tensors().into_iter().filter(|(name, _)| name != "demonstrated").collect();
+        assert_eq!(kept.len() + 1, st.len());
+        safetensors::tensor::serialize_to_file(kept, header.metadata().clone(), &old).unwrap();
+        let loaded = ReplayBuffer::load(&old, codec, 8).unwrap();
+        let mut b = Batch::default();
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(0);
+        loaded.sample_into(32, Returns { n: 1, gamma: 0.9 }, &mut rng, &mut b);
+        assert_eq!(b.demonstrated, vec![0.0; 32]);
+        ReplayBuffer::load(&path, codec, 8).unwrap().sample_into(
+            32,
+            Returns { n: 1, gamma: 0.9 },
+            &mut rng,
+            &mut b,
+        );
+        assert!(b.demonstrated.contains(&1.0), "the new file keeps them");
+    }
+
     #[test]
     fn keeps_the_newest_transitions_when_full() {
         let mut r = ReplayBuffer::new(ObsCodec::plain(3), 4);
@@ -434,6 +485,8 @@ mod tests {
             assert_eq!(b.next_obs[i * 3 + 2], if ends { x + 0.5 } else { x + 1.0 });
             let term = ends && (x as usize).is_multiple_of(2);
             assert_eq!(b.terminated[i], if term { 1.0 } else { 0.0 });
+            let demonstrated = (x as usize).is_multiple_of(3);
+            assert_eq!(b.demonstrated[i], if demonstrated { 1.0 } else { 0.0 });
         }
     }
 

@@ -7,6 +7,7 @@
 //! | (n-step, `sac.n_step`) | r and γ become Σ_i<k γ^i r_t+i and γ^k, s′ becomes s_t+k |
 //! | [`critic_loss`] | L(φ_j) = 1/|M| Σ (Q_φj(s,a) − Q̂(s,a))², summed over j = 1, 2 |
 //! | [`actor_loss`] | L(θ) = 1/|M| Σ (α log π_θ(ã|s) − min_j Q_φj(s,ã)) + λ‖θ‖² |
+//! | [`behaviour_cloning_loss`] (`sac.bc_weight` > 0) | + λ_BC/|M| Σ m ‖tanh μ_θ(s) − a‖², m = [a demonstrated ∧ min_j Q_φj(s,a) > min_j Q_φj(s,ã)] |
 //! | [`temperature_loss`] | J(α) = 1/|M| Σ −α (log π_θ(ã|s) + H̄) (Haarnoja 2019, eq. 18) |
 //! | [`soft_update`] | φ̂ ← τ φ + (1 − τ) φ̂ |
 //!
@@ -61,6 +62,25 @@ pub fn actor_loss(
         Some(l2) => sac + l2,
         None => Ok(sac),
     }
+}
+
+/// 1/|M| Σ m ‖tanh μ(s) − a‖² with m = demonstrated · [q_demo > q_pi]: the policy's
+/// deterministic action pulled towards a controller's action `a` where the critics rate that
+/// action above the policy's own (the Q-filter of Nair et al. 2018, "Overcoming exploration in
+/// reinforcement learning with demonstrations"), so a demonstration that is worse than what
+/// the policy does is not imitated. `q_demo` = min_j Q_j(s, a) and `q_pi` = min_j Q_j(s, ã)
+/// are detached: the filter is a mask, not a path for gradients. Also returns the mask.
+pub fn behaviour_cloning_loss(
+    mean_action: &Tensor,
+    action: &Tensor,
+    demonstrated: &Tensor,
+    q_demo: &Tensor,
+    q_pi: &Tensor,
+) -> Result<(Tensor, Tensor)> {
+    let better = q_demo.detach().gt(&q_pi.detach())?.to_dtype(demonstrated.dtype())?;
+    let mask = (demonstrated * better)?;
+    let sq = (mean_action - action)?.sqr()?.sum(1)?;
+    Ok(((sq * &mask)?.mean_all()?, mask))
 }
 
 /// λ Σ‖W‖² over the policy's weight matrices; `None` when λ = 0 or there are none.
@@ -267,7 +287,22 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
                 let q1_pi = nets.critic1.net.q_for_policy(&s.obs, &pi.action)?;
                 let q2_pi = nets.critic2.net.q_for_policy(&s.obs, &pi.action)?;
                 // The L2 term belongs to the batch, not to a shard: the first shard adds it.
-                let sac = actor_loss(&pi.log_prob, &q1_pi, &q2_pi, alpha, 0.0, &[])?;
+                let mut sac = actor_loss(&pi.log_prob, &q1_pi, &q2_pi, alpha, 0.0, &[])?;
+                if cfg.bc_weight > 0.0 {
+                    let q_demo = nets
+                        .critic1
+                        .net
+                        .q(&s.obs, &s.actions)?
+                        .minimum(&nets.critic2.net.q(&s.obs, &s.actions)?)?;
+                    let (bc, _) = behaviour_cloning_loss(
+                        &pi.mean_action,
+                        &s.actions,
+                        &s.demonstrated,
+                        &q_demo,
+                        &q1_pi.minimum(&q2_pi)?,
+                    )?;
+                    sac = (sac + (bc * cfg.bc_weight)?)?;
+                }
                 let mut loss = share_of(sac, s.share)?;
                 if s.first
                     && let Some(l2) = l2_penalty(&weights, cfg.policy_l2)?
@@ -440,6 +475,7 @@ mod tests {
             next_obs: (0..n * d).map(|i| 0.4 + (i % 11) as f32 * 0.2).collect(),
             discounts: vec![0.99; n],
             terminated: vec![0.0, 0.0, 1.0, 1.0],
+            demonstrated: vec![0.0; n],
         }
     }
 
@@ -484,6 +520,7 @@ mod tests {
             next_obs: (0..n * d).map(|i| 0.4 + ((i * 5) % 19) as f32 * 0.2).collect(),
             discounts: vec![0.99; n],
             terminated: (0..n).map(|i| (i % 5 == 0) as u8 as f32).collect(),
+            demonstrated: vec![0.0; n],
         };
         let weights = |l: &SacLearner| -> Vec<f32> {
             let mut all = Vec::new();
@@ -527,6 +564,71 @@ mod tests {
                 "float rounding differs; an identical result means one shard ran"
             );
         }
+    }
+
+    #[test]
+    fn behaviour_cloning_pulls_only_demonstrations_the_critics_rate_higher() {
+        // Row 0: demonstrated, Q(s,a) 2 > Q(s,ã) 1: cloned, ‖(0.5, 0) − (0, 0)‖² = 0.25.
+        // Row 1: demonstrated, but Q(s,a) 0 < Q(s,ã) 1: filtered out. Row 2: the policy's own.
+        let mean = t(&[0.5, 0.0, 0.0, 0.0, 1.0, 1.0]).reshape((3, 2)).unwrap();
+        let action = t(&[0.0, 0.0, 0.0, 0.5, 0.0, 0.0]).reshape((3, 2)).unwrap();
+        let (loss, mask) = behaviour_cloning_loss(
+            &mean,
+            &action,
+            &t(&[1.0, 1.0, 0.0]),
+            &t(&[2.0, 0.0, 5.0]),
+            &t(&[1.0, 1.0, 0.0]),
+        )
+        .unwrap();
+        assert!((scalar(&loss).unwrap() - 0.25 / 3.0).abs() < 1e-7);
+        assert_eq!(mask.to_vec1::<f32>().unwrap(), vec![1.0, 0.0, 0.0]);
+    }
+
+    /// `sac.bc_weight`: nothing changes without demonstrated rows; with them the policy's
+    /// update differs, the same over 1 and 2 threads, and its mean action moves towards them.
+    #[test]
+    fn the_cloning_term_acts_on_demonstrated_rows_only() {
+        let cfg = dvnav_config::Config::default();
+        let d = cfg.obs_dim();
+        let n = 32;
+        let mut batch = Batch {
+            size: n,
+            obs_dim: d,
+            obs: (0..n * d).map(|i| 0.3 + ((i * 7) % 23) as f32 * 0.2).collect(),
+            actions: (0..n * 2).map(|i| (i as f32 * 0.37).sin()).collect(),
+            rewards: (0..n).map(|i| (i as f32 * 0.9).cos()).collect(),
+            next_obs: (0..n * d).map(|i| 0.4 + ((i * 5) % 19) as f32 * 0.2).collect(),
+            discounts: vec![0.99; n],
+            terminated: vec![0.0; n],
+            demonstrated: vec![0.0; n],
+        };
+        let run = |bc_weight: f64, threads: usize, batch: &Batch| {
+            let sac = dvnav_config::SacConfig { bc_weight, policy_delay: 1, ..cfg.sac.clone() };
+            let nets = SacNetworks::new(&cfg, 3, &Device::Cpu).unwrap();
+            let mut l = SacLearner::new(nets, sac, Device::Cpu, 1).unwrap();
+            l = l.with_threads(threads).unwrap();
+            for _ in 0..3 {
+                l.update(batch).unwrap();
+            }
+            l
+        };
+        let policy = |l: &SacLearner| l.policy_safetensors().unwrap();
+        assert_eq!(policy(&run(0.0, 1, &batch)), policy(&run(5.0, 1, &batch)));
+        batch.demonstrated = vec![1.0; n];
+        let (plain, cloned) = (run(0.0, 1, &batch), run(5.0, 1, &batch));
+        assert_ne!(policy(&plain), policy(&cloned));
+        // Closer to the demonstrated actions, over the rows, than without the term.
+        let gap = |l: &SacLearner| {
+            let obs = Tensor::from_slice(&batch.obs, (n, d), &Device::Cpu).unwrap();
+            let eps = Tensor::zeros((n, 2), candle_core::DType::F32, &Device::Cpu).unwrap();
+            let mean = l.nets.actor.net.sample_with_noise(&obs, &eps).unwrap().mean_action;
+            let a = Tensor::from_slice(&batch.actions, (n, 2), &Device::Cpu).unwrap();
+            scalar(&(mean - a).unwrap().sqr().unwrap().mean_all().unwrap()).unwrap()
+        };
+        assert!(gap(&cloned) < gap(&plain), "{} vs {}", gap(&cloned), gap(&plain));
+        let two = run(5.0, 2, &batch);
+        let (a, b) = (two.last_metrics(), cloned.last_metrics());
+        assert!((a.actor_loss - b.actor_loss).abs() <= 1e-4 * (1.0 + b.actor_loss.abs()));
     }
 
     #[test]

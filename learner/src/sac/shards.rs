@@ -34,6 +34,8 @@ pub struct Shard {
     pub discounts: Tensor,
     /// `(rows,)`.
     pub terminated: Tensor,
+    /// `(rows,)`: 1 where a controller chose the action ([`Batch::demonstrated`]).
+    pub demonstrated: Tensor,
     /// ε for the next observations, `(rows, action_dim)`.
     pub eps_next: Tensor,
     /// ε for the current observations, `(rows, action_dim)`.
@@ -81,6 +83,7 @@ pub fn split(
                 rewards: column(&batch.rewards)?,
                 discounts: column(&batch.discounts)?,
                 terminated: column(&batch.terminated)?,
+                demonstrated: column(&batch.demonstrated)?,
                 eps_next: rows(noise.next, action_dim)?,
                 eps_pi: rows(noise.current, action_dim)?,
                 share: r as f64 / b as f64,
@@ -186,6 +189,7 @@ mod tests {
             next_obs: (0..n * d).map(|i| 1000.0 + i as f32).collect(),
             discounts: (0..n).map(|i| 0.9 + i as f32 * 0.001).collect(),
             terminated: (0..n).map(|i| (i % 2) as f32).collect(),
+            demonstrated: vec![0.0; n],
         };
         let noise = UpdateNoise {
             next: (0..n * 2).map(|i| i as f32 * 0.1).collect(),

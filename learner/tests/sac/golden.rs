@@ -357,6 +357,7 @@ fn three_full_updates(precision: Precision) -> (Vec<[f64; 5]>, Vec<(String, f64)
         rewards: vec![0.5, -1.0, 10.0],
         discounts: vec![cfg.sac.gamma as f32; 3],
         terminated: vec![0.0, 1.0, 0.0],
+        demonstrated: vec![0.0; 3],
     };
     let metrics = (0..UPDATE_METRICS.len())
         .map(|step| {

@@ -168,6 +168,8 @@ impl Replay {
             out.discounts.push(GAMMA);
             // Pendulum episodes end by time limit only: never terminated.
             out.terminated.push(0.0);
+            // Every action is the policy's: no controller drives the pendulum.
+            out.demonstrated.push(0.0);
         }
     }
 }
@@ -202,6 +204,7 @@ fn train(
         updates_per_env_step: 1.0,
         learning_starts: learning_starts as u64,
         n_step: 1,
+        bc_weight: 0.0,
     };
     let nets = SacNetworks::build(
         &dev,

@@ -38,6 +38,7 @@ fn batch(cfg: &Config, k: usize) -> Batch {
         next_obs: (0..n * d).map(|i| x(i, 0.41)).collect(),
         discounts: vec![0.99; n],
         terminated: (0..n).map(|i| if (i + k).is_multiple_of(4) { 1.0 } else { 0.0 }).collect(),
+        demonstrated: vec![0.0; n],
     }
 }
 
