@@ -479,6 +479,22 @@ mod tests {
         }
     }
 
+    /// `n` rows that differ from one another, every fifth terminated, none demonstrated.
+    fn varied_batch(cfg: &dvnav_config::Config, n: usize) -> Batch {
+        let d = cfg.obs_dim();
+        Batch {
+            size: n,
+            obs_dim: d,
+            obs: (0..n * d).map(|i| 0.3 + ((i * 7) % 23) as f32 * 0.2).collect(),
+            actions: (0..n * 2).map(|i| (i as f32 * 0.37).sin()).collect(),
+            rewards: (0..n).map(|i| (i as f32 * 0.9).cos()).collect(),
+            next_obs: (0..n * d).map(|i| 0.4 + ((i * 5) % 19) as f32 * 0.2).collect(),
+            discounts: vec![0.99; n],
+            terminated: (0..n).map(|i| (i % 5 == 0) as u8 as f32).collect(),
+            demonstrated: vec![0.0; n],
+        }
+    }
+
     fn learner(seed: u64) -> SacLearner {
         let cfg = dvnav_config::Config::default();
         let nets = SacNetworks::new(&cfg, 3, &Device::Cpu).unwrap();
@@ -509,19 +525,7 @@ mod tests {
     fn an_update_shared_out_over_threads_is_the_same_update() {
         // 40 rows in 1, 2 or 3 shards: the same metrics and weights up to float rounding.
         let cfg = dvnav_config::Config::default();
-        let d = cfg.obs_dim();
-        let n = 40;
-        let batch = Batch {
-            size: n,
-            obs_dim: d,
-            obs: (0..n * d).map(|i| 0.3 + ((i * 7) % 23) as f32 * 0.2).collect(),
-            actions: (0..n * 2).map(|i| (i as f32 * 0.37).sin()).collect(),
-            rewards: (0..n).map(|i| (i as f32 * 0.9).cos()).collect(),
-            next_obs: (0..n * d).map(|i| 0.4 + ((i * 5) % 19) as f32 * 0.2).collect(),
-            discounts: vec![0.99; n],
-            terminated: (0..n).map(|i| (i % 5 == 0) as u8 as f32).collect(),
-            demonstrated: vec![0.0; n],
-        };
+        let batch = varied_batch(&cfg, 40);
         let weights = |l: &SacLearner| -> Vec<f32> {
             let mut all = Vec::new();
             for (_, t) in l.state_tensors() {
@@ -589,19 +593,8 @@ mod tests {
     #[test]
     fn the_cloning_term_acts_on_demonstrated_rows_only() {
         let cfg = dvnav_config::Config::default();
-        let d = cfg.obs_dim();
-        let n = 32;
-        let mut batch = Batch {
-            size: n,
-            obs_dim: d,
-            obs: (0..n * d).map(|i| 0.3 + ((i * 7) % 23) as f32 * 0.2).collect(),
-            actions: (0..n * 2).map(|i| (i as f32 * 0.37).sin()).collect(),
-            rewards: (0..n).map(|i| (i as f32 * 0.9).cos()).collect(),
-            next_obs: (0..n * d).map(|i| 0.4 + ((i * 5) % 19) as f32 * 0.2).collect(),
-            discounts: vec![0.99; n],
-            terminated: vec![0.0; n],
-            demonstrated: vec![0.0; n],
-        };
+        let (d, n) = (cfg.obs_dim(), 32);
+        let mut batch = varied_batch(&cfg, n);
         let run = |bc_weight: f64, threads: usize, batch: &Batch| {
             let sac = dvnav_config::SacConfig { bc_weight, policy_delay: 1, ..cfg.sac.clone() };
             let nets = SacNetworks::new(&cfg, 3, &Device::Cpu).unwrap();
