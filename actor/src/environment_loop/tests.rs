@@ -88,6 +88,16 @@ fn fixed_loop(
         .unwrap()
 }
 
+/// Steps every environment of `el` `steps` times (unless the learner says stop first).
+fn run_steps<V: VariableSource>(el: &mut EnvironmentLoop<VecAdder, V>, steps: usize) {
+    let mut n = 0;
+    el.run(|_| {
+        n += 1;
+        n <= steps
+    })
+    .unwrap();
+}
+
 fn run(warmup: bool, steps: usize, seed: u64) -> (TransitionBatch, LoopCounters) {
     run_at(warmup, steps, seed, 0, 0.0)
 }
@@ -104,12 +114,7 @@ fn run_at(
     cfg.env.max_steps = 60;
     cfg.curriculum.earlier_share = earlier_share;
     let mut el = fixed_loop(cfg, 3, stage, warmup, seed);
-    let mut n = 0;
-    el.run(|_| {
-        n += 1;
-        n <= steps
-    })
-    .unwrap();
+    run_steps(&mut el, steps);
     let (adder, counters) = el.finish().unwrap();
     (adder.batch, counters)
 }
@@ -150,12 +155,7 @@ fn an_unwritable_log_directory_is_survived_and_retried() {
         Some(selector),
     )
     .unwrap();
-    let mut n = 0;
-    el.run(|_| {
-        n += 1;
-        n <= 100
-    })
-    .unwrap();
+    run_steps(&mut el, 100);
     let c = el.counters();
     assert!(c.episodes >= 5, "{c:?}");
     assert_eq!(c.logged_episodes, 0, "{c:?}");
@@ -164,12 +164,7 @@ fn an_unwritable_log_directory_is_survived_and_retried() {
     // The directory is back: the next selected episodes are written again.
     std::fs::remove_file(&dir).unwrap();
     std::fs::create_dir(&dir).unwrap();
-    let mut n = 0;
-    el.run(|_| {
-        n += 1;
-        n <= 100
-    })
-    .unwrap();
+    run_steps(&mut el, 100);
     let (adder, c) = el.finish().unwrap();
     assert_eq!(c.log_write_failures, failures, "{c:?}");
     assert!(c.logged_episodes >= 5, "{c:?}");
@@ -242,12 +237,7 @@ fn radius_input_transitions_carry_each_episodes_drawn_radius() {
         None,
     )
     .unwrap();
-    let mut n = 0;
-    el.run(|_| {
-        n += 1;
-        n <= 200
-    })
-    .unwrap();
+    run_steps(&mut el, 200);
     let (adder, _) = el.finish().unwrap();
     let b = adder.batch;
     let d = b.obs_dim;
@@ -294,12 +284,7 @@ fn the_planner_expert_drives_its_share_of_episodes() {
             Some(dvnav_sim::subgoal::SubgoalConfig { follow_share: 0.0, ..Default::default() });
         cfg.warmup.expert_share = share;
         let mut el = fixed_loop(cfg, 3, 0, false, 4);
-        let mut n = 0;
-        el.run(|_| {
-            n += 1;
-            n <= 1500
-        })
-        .unwrap();
+        run_steps(&mut el, 1500);
         let (adder, c) = el.finish().unwrap();
         (adder.batch, c)
     };
@@ -379,12 +364,7 @@ fn run_rooms(rooms: &[&str], stage: u32, steps: usize, seed: u64) -> TransitionB
     cfg.env.max_steps = 25;
     cfg.curriculum.rooms = rooms.iter().map(|r| r.to_string()).collect();
     let mut el = fixed_loop(cfg, 1, stage, true, seed);
-    let mut n = 0;
-    el.run(|_| {
-        n += 1;
-        n <= steps
-    })
-    .unwrap();
+    run_steps(&mut el, steps);
     el.finish().unwrap().0.batch
 }
 
