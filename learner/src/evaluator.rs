@@ -25,12 +25,13 @@ use crate::csv_format::{ser_2_decimals, ser_4_decimals_or_nan};
 use dvnav_config::Config;
 use dvnav_eval::episode_log::LogMetadata;
 use dvnav_eval::{
-    EvalLogger, RoomSummary, RunOptions, TRAINING_ROUTE, TaskKind, room_summaries, run_tasks,
-    training_tasks,
+    EvalLogger, GATE_RADII, GateGeometry, RobotResult, RoomSummary, RunOptions, TRAINING_ROUTE,
+    TaskKind, parse_radii, robot_results, robot_tasks, room_summaries, run_tasks, training_tasks,
 };
-use dvnav_nav::policy::MetaAgent;
-use dvnav_sim::Room;
+use dvnav_nav::dvst::{Dvst, MetaRobot, VariedRobot};
+use dvnav_nav::policy::{MetaAgent, NavPolicy};
 use dvnav_sim::room_set::RoomSet;
+use dvnav_sim::{Footprint, Room};
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -117,6 +118,22 @@ impl Evaluator {
                         }
                     }
                     Err(e) => tracing::error!(updates = snap.updates, error = %format!("{e:#}"), "evaluation failed"),
+                }
+                if cfg.learner.eval_gate {
+                    let csv = out.join("gate.csv");
+                    match pool.install(|| evaluate_gate(&cfg, &snap)) {
+                        Ok(robots) => {
+                            log_gate(&snap, &robots);
+                            if let Err(e) = append_gate_csv(&csv, &snap, &robots) {
+                                let e = format!("{e:#}");
+                                match &on_write_failure {
+                                    Some(report) => report(&csv, &e),
+                                    None => tracing::error!(path = %csv.display(), error = %e, "cannot write gate.csv"),
+                                }
+                            }
+                        }
+                        Err(e) => tracing::error!(updates = snap.updates, error = %format!("{e:#}"), "the gate test failed"),
+                    }
                 }
             }
             if let Some(l) = logger
@@ -266,6 +283,120 @@ pub fn evaluate(
     // Summarized stage by stage: a room in two stages gets a row in each.
     let rows = blocks.into_iter().flat_map(|b| room_summaries(&tasks[b.clone()], &results[b]));
     Ok((rows.collect(), started.elapsed().as_secs_f64()))
+}
+
+/// The paper's gate test on the policy of `snap` (`learner.eval_gate`): the twelve robots of
+/// [`GATE_RADII`] on the gate room's route, each through DVST at μ = R / R_m, in the clean
+/// simulator `dvnav eval --scenario gate` uses (no training robustness, varied robots or
+/// subgoals). One result per robot, in radius order.
+pub fn evaluate_gate(cfg: &Config, snap: &Snapshot) -> anyhow::Result<Vec<RobotResult>> {
+    let room = Room::builtin("gate")?;
+    let route = room
+        .spec()
+        .route("gate")
+        .ok_or_else(|| anyhow::anyhow!("the gate room has no route `gate`"))?
+        .clone();
+    let geometry = GateGeometry::from_room(room.spec(), &route)?;
+    let radii = parse_radii(GATE_RADII)?;
+    let tasks = robot_tasks(&room, &route, &radii, eval_seed(cfg.run.seed));
+    let meta = MetaRobot::trained(&cfg.env)?;
+    let mut robots = radii
+        .iter()
+        .map(|&r| {
+            let agent = MetaAgent::from_safetensors(&snap.policy, cfg)?;
+            let robot = VariedRobot { meta, ..VariedRobot::new(Footprint::circle(r)) };
+            Dvst::for_run(agent, &cfg.env, robot)
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let mut policies: Vec<&mut dyn NavPolicy> =
+        robots.iter_mut().map(|p| p as &mut dyn NavPolicy).collect();
+    let env = dvnav_config::EnvConfig {
+        dvst: None,
+        subgoals: None,
+        robustness: Default::default(),
+        lidar: dvnav_sim::LidarConfig { noise_std: 0.0, ..cfg.env.lidar.clone() },
+        ..cfg.env.clone()
+    };
+    let results =
+        run_tasks(&tasks, &env, &mut policies, RunOptions::default(), &mut |_, _| Ok(()))?;
+    Ok(robot_results(&tasks, &results, &geometry))
+}
+
+/// Header of `gate.csv`: [`GateRow`]'s field names.
+pub const GATE_CSV_HEADER: &str =
+    "updates,env_steps,policy_version,radius,outcome,route,path_length_m,time_s,passed";
+
+/// One row of `gate.csv`: one robot of the gate test at one evaluation.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GateRow {
+    /// Learner updates done.
+    pub updates: u64,
+    /// Environment steps received.
+    pub env_steps: u64,
+    /// Weight version evaluated (0: never published).
+    pub policy_version: u64,
+    /// The robot's radius (m).
+    pub radius: f64,
+    /// success, collision or timeout.
+    pub outcome: String,
+    /// gate, left or other.
+    pub route: String,
+    /// Length of the path driven (m).
+    #[serde(serialize_with = "ser_4_decimals_or_nan")]
+    pub path_length_m: f64,
+    /// Simulated seconds on the route.
+    #[serde(serialize_with = "ser_2_decimals")]
+    pub time_s: f64,
+    /// Passed the paper's test ([`RobotResult::passes_gate_test`]).
+    pub passed: bool,
+}
+
+impl GateRow {
+    /// The row of robot `r` in the evaluation of `snap`.
+    pub fn of(snap: &Snapshot, r: &RobotResult) -> Self {
+        Self {
+            updates: snap.updates,
+            env_steps: snap.env_steps,
+            policy_version: snap.policy_version,
+            radius: r.radius,
+            outcome: r.outcome.as_str().to_string(),
+            route: r.route.as_str().to_string(),
+            path_length_m: r.path_length_m,
+            time_s: r.time_s,
+            passed: r.passes_gate_test(),
+        }
+    }
+}
+
+/// Appends the gate test of `snap` to `gate.csv` at `path` (the header first in a new file).
+pub fn append_gate_csv(path: &Path, snap: &Snapshot, robots: &[RobotResult]) -> anyhow::Result<()> {
+    let mut file = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(path)
+        .map_err(|e| anyhow::anyhow!("cannot open {}: {e}", path.display()))?;
+    let new = file.metadata()?.len() == 0;
+    let mut w = csv::WriterBuilder::new().has_headers(new).from_writer(Vec::new());
+    for r in robots {
+        w.serialize(GateRow::of(snap, r))?;
+    }
+    file.write_all(&w.into_inner().map_err(|e| e.into_error())?)?;
+    Ok(())
+}
+
+fn log_gate(snap: &Snapshot, robots: &[RobotResult]) {
+    let failed: Vec<String> = robots
+        .iter()
+        .filter(|r| !r.passes_gate_test())
+        .map(|r| format!("R = {:.2}: {} by {}", r.radius, r.outcome.as_str(), r.route.as_str()))
+        .collect();
+    tracing::info!(
+        updates = snap.updates,
+        passed = robots.len() - failed.len(),
+        robots = robots.len(),
+        failed = %failed.join("; "),
+        "gate test"
+    );
 }
 
 /// One row of `eval.csv`: a room's results at one evaluation. Route fields are empty (or NaN)
@@ -456,6 +587,70 @@ mod tests {
         assert!(logged.iter().all(|r| r.summary.actor == "eval"));
         assert!(logged.iter().any(|r| r.summary.policy_version == 3 && r.summary.stage == 0));
         assert!(logged.iter().any(|r| r.summary.room == "env3" && r.summary.stage == 1));
+    }
+
+    #[test]
+    fn the_shipped_agent_passes_the_gate_test_in_training_evaluation_and_a_fresh_one_does_not() {
+        // The same test as tests/shipped_model.rs runs through `dvnav eval --scenario gate`:
+        // the shipped agent's twelve robots all arrive by the paper's routes.
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/meta-r0.2");
+        let model = dvnav_nav::policy::read_policy(&root).unwrap();
+        let snap =
+            |policy: Vec<u8>| Snapshot { updates: 2, env_steps: 5, policy_version: 1, policy };
+        let robots = evaluate_gate(&model.config, &snap(model.weights.clone())).unwrap();
+        let radii: Vec<f64> = robots.iter().map(|r| r.radius).collect();
+        assert_eq!(radii.len(), 12, "{radii:?}");
+        assert!((radii[0] - 0.20).abs() < 1e-9 && (radii[11] - 0.75).abs() < 1e-9, "{radii:?}");
+        let failed: Vec<_> = robots.iter().filter(|r| !r.passes_gate_test()).collect();
+        assert!(failed.is_empty(), "{failed:?}");
+        // An untrained policy does not pass it.
+        let cfg = tiny_config();
+        let fresh = evaluate_gate(&cfg, &snap(fresh_policy(&cfg))).unwrap();
+        assert!(fresh.iter().filter(|r| r.passes_gate_test()).count() < 12);
+    }
+
+    #[test]
+    fn the_evaluator_appends_the_gate_test_to_gate_csv_when_asked() {
+        let mut cfg = tiny_config();
+        cfg.curriculum.rooms = vec!["env0".into()];
+        cfg.learner.eval_gate = true;
+        let dir = tempfile::tempdir().unwrap();
+        for updates in [10, 20] {
+            let ev = Evaluator::start(&cfg, dir.path()).unwrap().unwrap();
+            let policy = fresh_policy(&cfg);
+            assert!(ev.submit(Snapshot {
+                updates,
+                env_steps: 4 * updates,
+                policy_version: 3,
+                policy
+            }));
+            ev.finish();
+        }
+        let text = std::fs::read_to_string(dir.path().join("gate.csv")).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines[0], GATE_CSV_HEADER, "one header, even after a restart");
+        assert_eq!(lines.len(), 1 + 2 * 12, "{text}");
+        assert!(lines[1].starts_with("10,40,3,0.2,") && lines[24].starts_with("20,80,3,0.75"));
+        for l in &lines[1..] {
+            let c: Vec<&str> = l.split(',').collect();
+            assert_eq!(c.len(), GATE_CSV_HEADER.split(',').count(), "{l}");
+            assert!(["success", "collision", "timeout"].contains(&c[4]), "{l}");
+            assert!(["gate", "left", "other"].contains(&c[5]), "{l}");
+            // A robot that did not arrive never passes.
+            assert!(c[4] == "success" || c[8] == "false", "{l}");
+        }
+        // Off: no gate.csv.
+        cfg.learner.eval_gate = false;
+        let dir = tempfile::tempdir().unwrap();
+        let ev = Evaluator::start(&cfg, dir.path()).unwrap().unwrap();
+        assert!(ev.submit(Snapshot {
+            updates: 10,
+            env_steps: 40,
+            policy_version: 3,
+            policy: fresh_policy(&cfg)
+        }));
+        ev.finish();
+        assert!(dir.path().join("eval.csv").exists() && !dir.path().join("gate.csv").exists());
     }
 
     #[test]

@@ -7,8 +7,8 @@ use clap::{Args, ValueEnum};
 use dvnav_config::Config;
 use dvnav_eval::episode_log::LogMetadata;
 use dvnav_eval::{
-    EvalLogger, GateGeometry, RunOptions, TRAINING_ROUTE, Task, parse_radii, robot_results,
-    robot_tasks, room_summaries, room_tasks, run_tasks, training_tasks,
+    EvalLogger, GATE_RADII, GateGeometry, RunOptions, TRAINING_ROUTE, Task, parse_radii,
+    robot_results, robot_tasks, room_summaries, room_tasks, run_tasks, training_tasks,
 };
 use dvnav_nav::dvst::{Dvst, MetaRobot, VariedRobot};
 use dvnav_nav::policy::{MetaAgent, NavPolicy};
@@ -449,8 +449,7 @@ fn tasks(args: &EvalArgs, cfg: &Config) -> anyhow::Result<Vec<Task>> {
                 .route(name)
                 .ok_or_else(|| anyhow::anyhow!("room `{name}` has no route `{name}`"))?
                 .clone();
-            let default =
-                if args.scenario == Scenario::Gate { "0.20:0.75:0.05" } else { "0.2:0.6:0.2" };
+            let default = if args.scenario == Scenario::Gate { GATE_RADII } else { "0.2:0.6:0.2" };
             let radii = match &args.radii {
                 Some(r) => r.0.clone(),
                 None => parse_radii(default)?,

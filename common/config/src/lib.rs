@@ -243,6 +243,12 @@ pub struct LearnerConfig {
     /// stage that is a set of rooms spreads them over the set's first rooms (up to 4).
     /// The same seeded starts and goals every time, so the rows of `eval.csv` compare.
     pub eval_episodes: usize,
+    /// With each evaluation, also run the paper's gate test (the twelve robots R = 0.20–0.75 m
+    /// through DVST, clean, as `dvnav eval --scenario gate`) and append a row per robot to
+    /// `gate.csv`: a run's behaviour at the trap is known while it trains. It is the paper's
+    /// own test, not a held-out room. Off by default (it costs about as much as the rooms).
+    #[serde(skip_serializing_if = "is_false")]
+    pub eval_gate: bool,
     /// The heartbeat interval (s). Actors deliver what they have at least every quarter
     /// interval, even a part batch, and the learner's watchdog names a component that made
     /// no progress for a whole interval (ingest, trainer, rate limiter, each actor) within one
@@ -267,10 +273,17 @@ impl Default for LearnerConfig {
             precision: Precision::Fp32,
             eval_every_updates: 2_000,
             eval_episodes: 10,
+            eval_gate: false,
             heartbeat_s: 10.0,
             liveness_stall_s: 300.0,
         }
     }
+}
+
+// Keys added after their section was first released stay out of a config's TOML (and its hash)
+// while off, so older runs keep their config hashes.
+fn is_false(b: &bool) -> bool {
+    !*b
 }
 
 /// The arithmetic of the learner's matrix products (`learner.precision`).

@@ -68,8 +68,8 @@ pub use gate::{GateGeometry, GateRoute};
 pub use log::EvalLogger;
 pub use runner::{Job, LegDone, Plan, RunOptions, run_jobs};
 pub use scenario::{
-    RobotResult, TRAINING_ROUTE, parse_radii, robot_results, robot_tasks, room_summaries,
-    room_tasks, training_tasks,
+    GATE_RADII, GATE_STRAIGHT_M, RobotResult, TRAINING_ROUTE, parse_radii, robot_results,
+    robot_tasks, room_summaries, room_tasks, training_tasks,
 };
 pub use smoothness::{CommandCounter, CommandStats};
 pub use summary::{LegSummary, Rates, RoomSummary, RouteResult, aggregate};

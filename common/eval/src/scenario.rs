@@ -146,6 +146,31 @@ pub struct RobotResult {
     pub mean_abs_domega: f64,
 }
 
+/// The paper's twelve gate-test robots (design §2): R = 0.20, 0.25, …, 0.75 m.
+pub const GATE_RADII: &str = "0.20:0.75:0.05";
+
+/// Longest path (m) of a robot that passes the gate test through the gate: the straight line
+/// from start to goal is 3.0 m.
+pub const GATE_STRAIGHT_M: f64 = 3.2;
+
+impl RobotResult {
+    /// The route the paper's gate test asks of a robot of this size: through the gate at
+    /// R ≤ 0.25 m (it fits), round the wall's left end above.
+    pub fn expected_gate_route(&self) -> GateRoute {
+        if self.radius <= 0.25 + 1e-9 { GateRoute::Gate } else { GateRoute::Left }
+    }
+
+    /// Whether this robot passed the paper's gate test: it arrived, by
+    /// [`RobotResult::expected_gate_route`], and through the gate on a near-straight path
+    /// (shorter than [`GATE_STRAIGHT_M`]).
+    pub fn passes_gate_test(&self) -> bool {
+        let want = self.expected_gate_route();
+        self.outcome == Outcome::Success
+            && self.route == want
+            && (want == GateRoute::Left || self.path_length_m < GATE_STRAIGHT_M)
+    }
+}
+
 /// One row per route task of `tasks` (a robot of the gate test), classified by `geometry`.
 pub fn robot_results(
     tasks: &[Task],
@@ -398,5 +423,31 @@ mod tests {
         assert_eq!(summaries.len(), 2);
         assert_eq!((summaries[1].radius, summaries[1].rates.episodes), (Some(0.35), 1));
         assert_eq!(summaries[1].rates.collision_rate, 1.0);
+    }
+
+    #[test]
+    fn the_gate_test_asks_the_gate_of_small_robots_on_a_straight_path_and_the_left_of_others() {
+        let robot =
+            |radius: f64, outcome: Outcome, route: GateRoute, path_length_m: f64| RobotResult {
+                room: "gate".into(),
+                radius,
+                outcome,
+                steps: 0,
+                time_s: 0.0,
+                path_length_m,
+                score: 0.0,
+                route,
+                reversal_rate: 0.0,
+                mean_abs_domega: 0.0,
+            };
+        let radii = parse_radii(GATE_RADII).unwrap();
+        assert_eq!(radii.len(), 12);
+        assert!(robot(0.25, Outcome::Success, GateRoute::Gate, 3.0).passes_gate_test());
+        assert!(!robot(0.25, Outcome::Success, GateRoute::Gate, 3.5).passes_gate_test());
+        assert!(!robot(0.25, Outcome::Success, GateRoute::Left, 6.0).passes_gate_test());
+        assert!(robot(0.30, Outcome::Success, GateRoute::Left, 6.0).passes_gate_test());
+        assert!(!robot(0.30, Outcome::Success, GateRoute::Gate, 3.0).passes_gate_test());
+        assert!(!robot(0.50, Outcome::Timeout, GateRoute::Left, 6.0).passes_gate_test());
+        assert!(!robot(0.50, Outcome::Success, GateRoute::Other, 6.0).passes_gate_test());
     }
 }
