@@ -370,6 +370,12 @@ impl GateRow {
 
 /// Appends the gate test of `snap` to `gate.csv` at `path` (the header first in a new file).
 pub fn append_gate_csv(path: &Path, snap: &Snapshot, robots: &[RobotResult]) -> anyhow::Result<()> {
+    append_rows(path, robots.iter().map(|r| GateRow::of(snap, r)))
+}
+
+/// Appends `rows` to the CSV file at `path`, the header first when the file is new or empty:
+/// one write, so a reader never sees half a batch of rows from this process.
+fn append_rows<T: Serialize>(path: &Path, rows: impl IntoIterator<Item = T>) -> anyhow::Result<()> {
     let mut file = std::fs::OpenOptions::new()
         .create(true)
         .append(true)
@@ -377,8 +383,8 @@ pub fn append_gate_csv(path: &Path, snap: &Snapshot, robots: &[RobotResult]) -> 
         .map_err(|e| anyhow::anyhow!("cannot open {}: {e}", path.display()))?;
     let new = file.metadata()?.len() == 0;
     let mut w = csv::WriterBuilder::new().has_headers(new).from_writer(Vec::new());
-    for r in robots {
-        w.serialize(GateRow::of(snap, r))?;
+    for r in rows {
+        w.serialize(r)?;
     }
     file.write_all(&w.into_inner().map_err(|e| e.into_error())?)?;
     Ok(())
@@ -495,19 +501,7 @@ pub fn append_csv(
     rows: &[RoomSummary],
     wall_s: f64,
 ) -> anyhow::Result<()> {
-    let mut file = std::fs::OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(path)
-        .map_err(|e| anyhow::anyhow!("cannot open {}: {e}", path.display()))?;
-    let new = file.metadata()?.len() == 0;
-    let mut w = csv::WriterBuilder::new().has_headers(new).from_writer(Vec::new());
-    for r in rows {
-        w.serialize(EvalRow::of(snap, r, wall_s))?;
-    }
-    let text = w.into_inner().map_err(|e| e.into_error())?;
-    file.write_all(&text)?;
-    Ok(())
+    append_rows(path, rows.iter().map(|r| EvalRow::of(snap, r, wall_s)))
 }
 
 fn log_rows(snap: &Snapshot, rows: &[RoomSummary], wall_s: f64) {
