@@ -18,6 +18,9 @@ pub struct GateRow {
     pub mu: f64,
     /// `dvst`, `none` or `radius` (the robot's radius as the policy's input).
     pub transfer: &'static str,
+    /// Passed the paper's gate test ([`RobotResult::passes_gate_test`]), so that scripts read
+    /// the rule rather than restate it.
+    pub passed: bool,
 }
 
 /// The report: one row per room (training, dynamic) or per robot (gate).
@@ -32,7 +35,11 @@ pub enum Rows {
 
 /// Gate rows with each robot's μ and how it was driven (`transfer`).
 pub fn gate_rows(robots: Vec<RobotResult>, mus: &[f64], transfer: &'static str) -> Vec<GateRow> {
-    robots.into_iter().zip(mus).map(|(robot, &mu)| GateRow { robot, mu, transfer }).collect()
+    robots
+        .into_iter()
+        .zip(mus)
+        .map(|(robot, &mu)| GateRow { passed: robot.passes_gate_test(), robot, mu, transfer })
+        .collect()
 }
 
 /// Per task, the index of its group (room, and robot radius when given) in order of first
