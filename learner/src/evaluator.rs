@@ -75,7 +75,7 @@ impl Evaluator {
         Self::start_reporting(cfg, out_dir, None)
     }
 
-    /// [`Evaluator::start`], calling `on_write_failure(path, error)` when `eval.csv` cannot be
+    /// [`Evaluator::start`], calling `on_write_failure(path, error)` when `eval.csv` (or `gate.csv`) cannot be
     /// written (the trainer counts it; the row is lost, the next evaluation tries again).
     pub fn start_reporting(
         cfg: &Config,
@@ -109,13 +109,7 @@ impl Evaluator {
                 match result {
                     Ok((rows, wall)) => {
                         log_rows(&snap, &rows, wall);
-                        if let Err(e) = append_csv(&csv, &snap, &rows, wall) {
-                            let e = format!("{e:#}");
-                            match &on_write_failure {
-                                Some(report) => report(&csv, &e),
-                                None => tracing::error!(path = %csv.display(), error = %e, "cannot write eval.csv"),
-                            }
-                        }
+                        report_write(&csv, append_csv(&csv, &snap, &rows, wall), on_write_failure.as_ref());
                     }
                     Err(e) => tracing::error!(updates = snap.updates, error = %format!("{e:#}"), "evaluation failed"),
                 }
@@ -124,13 +118,7 @@ impl Evaluator {
                     match pool.install(|| evaluate_gate(&cfg, &snap)) {
                         Ok(robots) => {
                             log_gate(&snap, &robots);
-                            if let Err(e) = append_gate_csv(&csv, &snap, &robots) {
-                                let e = format!("{e:#}");
-                                match &on_write_failure {
-                                    Some(report) => report(&csv, &e),
-                                    None => tracing::error!(path = %csv.display(), error = %e, "cannot write gate.csv"),
-                                }
-                            }
+                            report_write(&csv, append_gate_csv(&csv, &snap, &robots), on_write_failure.as_ref());
                         }
                         Err(e) => tracing::error!(updates = snap.updates, error = %format!("{e:#}"), "the gate test failed"),
                     }
@@ -283,6 +271,17 @@ pub fn evaluate(
     // Summarized stage by stage: a room in two stages gets a row in each.
     let rows = blocks.into_iter().flat_map(|b| room_summaries(&tasks[b.clone()], &results[b]));
     Ok((rows.collect(), started.elapsed().as_secs_f64()))
+}
+
+/// Hands a failed CSV write to `on_write_failure` (the learner counts it), or logs it.
+fn report_write(path: &Path, written: anyhow::Result<()>, on_write_failure: Option<&WriteFailure>) {
+    if let Err(e) = written {
+        let e = format!("{e:#}");
+        match on_write_failure {
+            Some(report) => report(path, &e),
+            None => tracing::error!(path = %path.display(), error = %e, "cannot write a CSV file"),
+        }
+    }
 }
 
 /// The paper's gate test on the policy of `snap` (`learner.eval_gate`): the twelve robots of
