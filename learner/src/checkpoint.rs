@@ -1,8 +1,9 @@
 //! Checkpoints: everything the next update depends on, written atomically.
 //!
 //! Layout: `OUT/checkpoints/ckpt-<updates, 10 digits>/` with `state.safetensors` (networks,
-//! targets, log α, optimizer moments), `policy.safetensors` (the policy alone, what `dvnav eval`
-//! and actors load), `meta.json` (counters, curriculum, the learner's two random generators),
+//! targets, log α, optimizer moments), `policy.safetensors` (the run's agent alone, what `dvnav
+//! eval` and `dvnav serve` load: the policy average θ̄ when `sac.policy_average_tau` > 0, then
+//! beside `policy-online.safetensors`, the online policy the actors had), `meta.json` (counters, curriculum, the learner's two random generators),
 //! `config.toml`, and `replay.safetensors` when `replay.save_in_checkpoint` is on. A
 //! checkpoint is written into a `.tmp` directory and renamed into place, so a crash mid-write
 //! never leaves a directory with the final name; readers only consider directories with a
@@ -104,6 +105,12 @@ pub fn save(
         write(out_dir, learner, &meta, state.config_toml(), replay)
     })
 }
+
+/// The run's agent inside a checkpoint directory (the policy average when there is one).
+pub const POLICY_FILE: &str = "policy.safetensors";
+
+/// The online policy inside a checkpoint directory, written when the agent is a policy average.
+pub const ONLINE_POLICY_FILE: &str = "policy-online.safetensors";
 
 /// The replay buffer's file inside a checkpoint directory, when it was saved.
 pub const REPLAY_FILE: &str = "replay.safetensors";
@@ -228,8 +235,14 @@ fn write_into(
     io("", std::fs::create_dir_all(tmp))?;
     let state = safetensors::tensor::serialize(learner.state_tensors(), None)?;
     io("state.safetensors", std::fs::write(tmp.join("state.safetensors"), state))?;
-    let policy = learner.policy_safetensors()?;
-    io("policy.safetensors", std::fs::write(tmp.join("policy.safetensors"), policy))?;
+    let agent = learner.agent_safetensors()?;
+    io(POLICY_FILE, std::fs::write(tmp.join(POLICY_FILE), agent))?;
+    let mut files = vec!["state.safetensors", POLICY_FILE, "config.toml", "meta.json"];
+    if learner.averages_policy() {
+        let online = learner.policy_safetensors()?;
+        io(ONLINE_POLICY_FILE, std::fs::write(tmp.join(ONLINE_POLICY_FILE), online))?;
+        files.push(ONLINE_POLICY_FILE);
+    }
     io("config.toml", std::fs::write(tmp.join("config.toml"), config_toml))?;
     if let Some(replay) = replay {
         replay.save(&tmp.join(REPLAY_FILE))?;
@@ -237,7 +250,7 @@ fn write_into(
     }
     // meta.json last: readers take a directory with one as complete.
     io("meta.json", std::fs::write(tmp.join("meta.json"), serde_json::to_vec_pretty(meta)?))?;
-    for f in ["state.safetensors", "policy.safetensors", "config.toml", "meta.json"] {
+    for f in files {
         io(f, std::fs::File::open(tmp.join(f)).and_then(|f| f.sync_all()))?;
     }
     Ok(())
@@ -384,6 +397,45 @@ mod tests {
         assert!(st.trainer_last_error.unwrap().contains("File too large"));
         // Nothing in memory changed.
         assert_eq!(a.policy_safetensors().unwrap(), before);
+    }
+
+    #[test]
+    fn with_a_policy_average_the_checkpoint_serves_it_beside_the_online_policy() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = Config::default();
+        cfg.sac.policy_average_tau = 0.5;
+        let nets = SacNetworks::new(&cfg, 1, &Device::Cpu).unwrap();
+        let mut a = SacLearner::new(nets, cfg.sac.clone(), Device::Cpu, 1).unwrap();
+        let d = cfg.obs_dim();
+        let batch = crate::replay::Batch {
+            size: 2,
+            obs_dim: d,
+            obs: (0..2 * d).map(|i| 0.5 + (i % 7) as f32 * 0.3).collect(),
+            actions: vec![0.1, -0.2, 0.3, 0.4],
+            rewards: vec![1.0, -1.0],
+            next_obs: (0..2 * d).map(|i| 0.6 + (i % 5) as f32 * 0.3).collect(),
+            discounts: vec![0.99; 2],
+            terminated: vec![0.0, 1.0],
+            demonstrated: vec![0.0; 2],
+        };
+        a.update(&batch).unwrap();
+        let meta = CheckpointMeta { updates: 1, ..Default::default() };
+        let path = write(dir.path(), &a, &meta, "", None).unwrap();
+        let agent = std::fs::read(path.join(POLICY_FILE)).unwrap();
+        let online = std::fs::read(path.join(ONLINE_POLICY_FILE)).unwrap();
+        assert_eq!(agent, a.agent_safetensors().unwrap());
+        assert_eq!(online, a.policy_safetensors().unwrap());
+        assert_ne!(agent, online);
+        // Both load as a policy.
+        for p in [POLICY_FILE, ONLINE_POLICY_FILE] {
+            let bytes = std::fs::read(path.join(p)).unwrap();
+            dvnav_nav::policy::MetaAgent::from_safetensors(&bytes, &cfg).unwrap();
+        }
+        // Without an average there is one policy file.
+        let plain =
+            write(dir.path(), &learner(1), &CheckpointMeta { updates: 2, ..meta }, "", None)
+                .unwrap();
+        assert!(!plain.join(ONLINE_POLICY_FILE).exists());
     }
 
     #[test]

@@ -54,8 +54,12 @@ pub struct Snapshot {
     pub env_steps: u64,
     /// Weight version of these weights (0 when they were never published).
     pub policy_version: u64,
-    /// Policy weights, safetensors bytes.
+    /// The agent's weights, safetensors bytes: the policy average θ̄ when
+    /// `sac.policy_average_tau` > 0, else the online policy.
     pub policy: Vec<u8>,
+    /// The online policy's weights when `policy` is an average (its gate test goes to
+    /// `gate-online.csv`, so a run shows both side by side); else `None`.
+    pub online: Option<Vec<u8>>,
 }
 
 /// Called with the path and the error when a write fails.
@@ -114,13 +118,18 @@ impl Evaluator {
                     Err(e) => tracing::error!(updates = snap.updates, error = %format!("{e:#}"), "evaluation failed"),
                 }
                 if cfg.learner.eval_gate {
-                    let csv = out.join("gate.csv");
-                    match pool.install(|| evaluate_gate(&cfg, &snap)) {
-                        Ok(robots) => {
-                            log_gate(&snap, &robots);
-                            report_write(&csv, append_gate_csv(&csv, &snap, &robots), on_write_failure.as_ref());
+                    let online = snap.online.as_ref().map(|w| Snapshot { policy: w.clone(), online: None, ..snap.clone() });
+                    let mut gates = vec![(GATE_CSV, "agent", &snap)];
+                    gates.extend(online.as_ref().map(|o| (GATE_ONLINE_CSV, "online policy", o)));
+                    for (file, policy, snap) in gates {
+                        let csv = out.join(file);
+                        match pool.install(|| evaluate_gate(&cfg, snap)) {
+                            Ok(robots) => {
+                                log_gate(snap, policy, &robots);
+                                report_write(&csv, append_gate_csv(&csv, snap, &robots), on_write_failure.as_ref());
+                            }
+                            Err(e) => tracing::error!(updates = snap.updates, policy, error = %format!("{e:#}"), "the gate test failed"),
                         }
-                        Err(e) => tracing::error!(updates = snap.updates, error = %format!("{e:#}"), "the gate test failed"),
                     }
                 }
             }
@@ -321,6 +330,12 @@ pub fn evaluate_gate(cfg: &Config, snap: &Snapshot) -> anyhow::Result<Vec<RobotR
     Ok(robot_results(&tasks, &results, &geometry))
 }
 
+/// The gate test of the run's agent, one row per robot and evaluation.
+pub const GATE_CSV: &str = "gate.csv";
+
+/// The gate test of the online policy, written when the agent is a policy average.
+pub const GATE_ONLINE_CSV: &str = "gate-online.csv";
+
 /// Header of `gate.csv`: [`GateRow`]'s field names.
 pub const GATE_CSV_HEADER: &str =
     "updates,env_steps,policy_version,radius,outcome,route,path_length_m,time_s,passed";
@@ -389,7 +404,7 @@ fn append_rows<T: Serialize>(path: &Path, rows: impl IntoIterator<Item = T>) -> 
     Ok(())
 }
 
-fn log_gate(snap: &Snapshot, robots: &[RobotResult]) {
+fn log_gate(snap: &Snapshot, policy: &str, robots: &[RobotResult]) {
     let failed: Vec<String> = robots
         .iter()
         .filter(|r| !r.passes_gate_test())
@@ -397,6 +412,7 @@ fn log_gate(snap: &Snapshot, robots: &[RobotResult]) {
         .collect();
     tracing::info!(
         updates = snap.updates,
+        policy,
         passed = robots.len() - failed.len(),
         robots = robots.len(),
         failed = %failed.join("; "),
@@ -551,11 +567,18 @@ mod tests {
             updates: 10,
             env_steps: 40,
             policy_version: 3,
-            policy: policy.clone()
+            policy: policy.clone(),
+            online: None
         }));
         ev.finish();
         let ev = Evaluator::start(&cfg, dir.path()).unwrap().unwrap();
-        assert!(ev.submit(Snapshot { updates: 20, env_steps: 80, policy_version: 0, policy }));
+        assert!(ev.submit(Snapshot {
+            updates: 20,
+            env_steps: 80,
+            policy_version: 0,
+            policy,
+            online: None
+        }));
         drop(ev);
         let text = std::fs::read_to_string(dir.path().join("eval.csv")).unwrap();
         let lines: Vec<&str> = text.lines().collect();
@@ -588,8 +611,13 @@ mod tests {
         // the shipped agent's twelve robots all arrive by the paper's routes.
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/meta-r0.2");
         let model = dvnav_nav::policy::read_policy(&root).unwrap();
-        let snap =
-            |policy: Vec<u8>| Snapshot { updates: 2, env_steps: 5, policy_version: 1, policy };
+        let snap = |policy: Vec<u8>| Snapshot {
+            updates: 2,
+            env_steps: 5,
+            policy_version: 1,
+            policy,
+            online: None,
+        };
         let robots = evaluate_gate(&model.config, &snap(model.weights.clone())).unwrap();
         let radii: Vec<f64> = robots.iter().map(|r| r.radius).collect();
         assert_eq!(radii.len(), 12, "{radii:?}");
@@ -611,11 +639,14 @@ mod tests {
         for updates in [10, 20] {
             let ev = Evaluator::start(&cfg, dir.path()).unwrap().unwrap();
             let policy = fresh_policy(&cfg);
+            // At 20 the agent is an average: the online policy's test goes to gate-online.csv.
+            let online = (updates == 20).then(|| policy.clone());
             assert!(ev.submit(Snapshot {
                 updates,
                 env_steps: 4 * updates,
                 policy_version: 3,
-                policy
+                policy,
+                online
             }));
             ev.finish();
         }
@@ -632,6 +663,12 @@ mod tests {
             // A robot that did not arrive never passes.
             assert!(c[4] == "success" || c[8] == "false", "{l}");
         }
+        let online = std::fs::read_to_string(dir.path().join(GATE_ONLINE_CSV)).unwrap();
+        let online: Vec<&str> = online.lines().collect();
+        assert_eq!(online[0], GATE_CSV_HEADER);
+        assert_eq!(online.len(), 1 + 12, "only the evaluation with an average");
+        // The same weights here, so the same rows as gate.csv's at 20 updates.
+        assert_eq!(online[1..], lines[13..]);
         // Off: no gate.csv.
         cfg.learner.eval_gate = false;
         let dir = tempfile::tempdir().unwrap();
@@ -640,10 +677,12 @@ mod tests {
             updates: 10,
             env_steps: 40,
             policy_version: 3,
-            policy: fresh_policy(&cfg)
+            policy: fresh_policy(&cfg),
+            online: None
         }));
         ev.finish();
         assert!(dir.path().join("eval.csv").exists() && !dir.path().join("gate.csv").exists());
+        assert!(!dir.path().join(GATE_ONLINE_CSV).exists());
     }
 
     #[test]
@@ -668,7 +707,13 @@ mod tests {
             rates: rates.clone(),
             route: None,
         };
-        let snap = Snapshot { updates: 10, env_steps: 40, policy_version: 3, policy: vec![] };
+        let snap = Snapshot {
+            updates: 10,
+            env_steps: 40,
+            policy_version: 3,
+            policy: vec![],
+            online: None,
+        };
         append_csv(&path, &snap, &[room("env0"), room("env3")], 1.234).unwrap();
         let text = std::fs::read_to_string(&path).unwrap();
         assert_eq!(
@@ -695,8 +740,13 @@ mod tests {
         assert!(Evaluator::start(&cfg, Path::new("/nonexistent")).unwrap().is_none());
         let cfg = tiny_config();
         let rooms = vec![vec![Room::builtin("env0").unwrap()]];
-        let snap =
-            Snapshot { updates: 1, env_steps: 1, policy_version: 0, policy: b"junk".to_vec() };
+        let snap = Snapshot {
+            updates: 1,
+            env_steps: 1,
+            policy_version: 0,
+            policy: b"junk".to_vec(),
+            online: None,
+        };
         assert!(evaluate(&cfg, &rooms, &snap, None).is_err());
     }
 
@@ -717,8 +767,13 @@ mod tests {
             ]
         );
         assert_eq!(names(&stages[1]), ["env3"]);
-        let snap =
-            Snapshot { updates: 1, env_steps: 1, policy_version: 0, policy: fresh_policy(&cfg) };
+        let snap = Snapshot {
+            updates: 1,
+            env_steps: 1,
+            policy_version: 0,
+            policy: fresh_policy(&cfg),
+            online: None,
+        };
         let (rows, wall) = evaluate(&cfg, &stages, &snap, None).unwrap();
         // One row per evaluated room, stage 0's first; its 6 episodes spread 2, 2, 1, 1; the
         // route where the room has one (env0, env3; generated rooms have none).
@@ -761,8 +816,13 @@ mod tests {
     fn the_same_policy_scores_the_same_every_time() {
         let cfg = tiny_config();
         let rooms = vec![vec![Room::builtin("env1").unwrap()]];
-        let snap =
-            Snapshot { updates: 1, env_steps: 1, policy_version: 0, policy: fresh_policy(&cfg) };
+        let snap = Snapshot {
+            updates: 1,
+            env_steps: 1,
+            policy_version: 0,
+            policy: fresh_policy(&cfg),
+            online: None,
+        };
         let (a, _) = evaluate(&cfg, &rooms, &snap, None).unwrap();
         let (b, _) = evaluate(&cfg, &rooms, &snap, None).unwrap();
         assert_eq!(a, b);

@@ -108,12 +108,19 @@ pub fn train(
             snapshot = for_eval.map(|p| (version, p));
         }
         if let Some(ev) = evaluator.as_ref().filter(|_| eval_due) {
-            let (policy_version, policy) = match snapshot {
+            let (policy_version, online) = match snapshot {
                 Some(s) => s,
                 None => (0, learner.policy_safetensors()?),
             };
+            // The run's agent is evaluated; with a policy average, the online policy the
+            // actors have (`policy_version`) goes along for the gate test beside it.
+            let (policy, online) = if learner.averages_policy() {
+                (learner.agent_safetensors()?, Some(online))
+            } else {
+                (online, None)
+            };
             let env_steps = state.status().transitions_received;
-            ev.submit(Snapshot { updates, env_steps, policy_version, policy });
+            ev.submit(Snapshot { updates, env_steps, policy_version, policy, online });
         }
         if schedule.due(updates, Instant::now()) {
             checkpoint_now(&state, &learner, &rng, &out_dir, &mut schedule);

@@ -149,6 +149,16 @@ pub struct SacConfig {
     /// Nair et al. 2018): + λ_BC · mean(m · ‖tanh μ_θ(s) − a‖²). 0 (the default): the paper's
     /// loss.
     pub bc_weight: f64,
+    /// Rate τ_π of a Polyak average of the policy's weights, θ̄ ← τ_π θ + (1 − τ_π) θ̄ after
+    /// each policy update (`sac.policy_delay`), so θ̄ averages the last ~1/τ_π policies. When
+    /// above 0, θ̄ is the run's agent: a checkpoint's `policy.safetensors` (what `dvnav eval`
+    /// and `dvnav serve` load) and the training-time evaluation (`eval.csv`, `gate.csv`) are
+    /// θ̄, while the actors keep exploring with the online θ (also saved, as
+    /// `policy-online.safetensors`, and evaluated into `gate-online.csv`). For a policy that
+    /// learns and unlearns a skill within a few thousand updates, so that a run's last
+    /// checkpoint falls on either side by chance. 0 (the default): the online policy is the
+    /// agent, as in the paper.
+    pub policy_average_tau: f64,
 }
 
 impl Default for SacConfig {
@@ -169,6 +179,7 @@ impl Default for SacConfig {
             learning_starts: 2_000,
             n_step: 1,
             bc_weight: 0.0,
+            policy_average_tau: 0.0,
         }
     }
 }
@@ -646,6 +657,12 @@ impl Config {
         }
         non_negative("sac.policy_l2", s.policy_l2)?;
         non_negative("sac.bc_weight", s.bc_weight)?;
+        if !(0.0..=1.0).contains(&s.policy_average_tau) {
+            return Err(bad(
+                "sac.policy_average_tau",
+                format!("must be in [0, 1] (0: off), got {}", s.policy_average_tau),
+            ));
+        }
         positive("sac.updates_per_env_step", s.updates_per_env_step)?;
         if !(1..=MAX_N_STEP).contains(&s.n_step) {
             return Err(bad(
@@ -1091,6 +1108,13 @@ mod tests {
         }
         let three = Config::from_toml_str("[sac]\nn_step = 3\n").unwrap();
         assert_eq!(three.sac.n_step, 3);
+        for tau in ["-0.1", "1.5", "nan"] {
+            let err =
+                Config::from_toml_str(&format!("[sac]\npolicy_average_tau = {tau}\n")).unwrap_err();
+            assert_eq!(err.key, "sac.policy_average_tau", "{tau}");
+        }
+        let avg = Config::from_toml_str("[sac]\npolicy_average_tau = 0.001\n").unwrap();
+        assert_eq!(avg.sac.policy_average_tau, 0.001);
     }
 
     #[test]

@@ -10,10 +10,12 @@
 //! | [`behaviour_cloning_loss`] (`sac.bc_weight` > 0) | + λ_BC/|M| Σ m ‖tanh μ_θ(s) − a‖², m = [a demonstrated ∧ min_j Q_φj(s,a) > min_j Q_φj(s,ã)] |
 //! | [`temperature_loss`] | J(α) = 1/|M| Σ −α (log π_θ(ã|s) + H̄) (Haarnoja 2019, eq. 18) |
 //! | [`soft_update`] | φ̂ ← τ φ + (1 − τ) φ̂ |
+//! | [`PolicyAverage::update`] (`sac.policy_average_tau` > 0) | θ̄ ← τ_π θ + (1 − τ_π) θ̄ after each policy update; θ̄ is the agent saved and evaluated |
 //!
 //! `d` is *termination* (success or collision) only: a timeout is a truncation and still
 //! bootstraps.
 
+use super::average::PolicyAverage;
 use super::networks::{GaussianPolicy, Owned, QFunction, SacNetworks};
 use super::optim::Adam;
 use super::shards::{self, Workers};
@@ -170,6 +172,8 @@ pub struct SacLearner<P = Actor, Q = Critic> {
     /// Source of the policy's sampling noise, seeded, so an update depends only on the seed,
     /// the networks and the batch (candle's own CPU generator cannot be seeded).
     noise: rand_pcg::Pcg64,
+    /// θ̄, when `sac.policy_average_tau` > 0.
+    average: Option<PolicyAverage>,
 }
 
 impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
@@ -192,6 +196,9 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
             Adam::new(vec![("log_alpha".into(), nets.log_alpha.clone())], cfg.alpha_lr)?;
         let action_dim = nets.actor.net.action_dim();
         let target_entropy = cfg.target_entropy.unwrap_or(-(action_dim as f64));
+        let average = (cfg.policy_average_tau > 0.0)
+            .then(|| PolicyAverage::start(&nets.actor.named_vars(), cfg.policy_average_tau))
+            .transpose()?;
         Ok(Self {
             nets,
             cfg,
@@ -206,6 +213,7 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
             device,
             workers: Workers::new(1)?,
             noise: rand_pcg::Pcg64::seed_from_u64(seed),
+            average,
         })
     }
 
@@ -326,6 +334,9 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
                 )?;
                 self.alpha_opt.step(&loss_a.backward()?)?;
             }
+            if let Some(avg) = &mut self.average {
+                avg.update(&self.nets.actor.named_vars())?;
+            }
         }
 
         soft_update(&self.nets.target1, &self.nets.critic1, self.cfg.tau)?;
@@ -377,6 +388,11 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
             );
         }
         out.push(("log_alpha".into(), self.nets.log_alpha.as_tensor().clone()));
+        if let Some(avg) = &self.average {
+            out.extend(
+                avg.tensors().iter().map(|(n, t)| (format!("{AVERAGE_PREFIX}.{n}"), t.clone())),
+            );
+        }
         out.extend(self.critic_opt.state_tensors("opt.critic"));
         out.extend(self.actor_opt.state_tensors("opt.actor"));
         out.extend(self.alpha_opt.state_tensors("opt.alpha"));
@@ -415,6 +431,22 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
             .get("log_alpha")
             .ok_or_else(|| anyhow::anyhow!("checkpoint lacks `log_alpha`"))?;
         self.nets.log_alpha.set(la)?;
+        if let Some(avg) = &mut self.average {
+            let prefixed = |n: &str| tensors.get(&format!("{AVERAGE_PREFIX}.{n}")).cloned();
+            if tensors.keys().any(|k| k.starts_with(&format!("{AVERAGE_PREFIX}."))) {
+                avg.load(prefixed)
+                    .map_err(|e| anyhow::anyhow!("checkpoint's policy average {e}"))?;
+            } else {
+                // A run saved without the average (turned on at a resume): it starts here.
+                tracing::warn!(
+                    "the checkpoint has no policy average (sac.policy_average_tau was 0); it starts at the checkpoint's policy"
+                );
+                *avg = PolicyAverage::start(
+                    &self.nets.actor.named_vars(),
+                    self.cfg.policy_average_tau,
+                )?;
+            }
+        }
         self.critic_opt.load_state("opt.critic", tensors, optimizer_steps[0])?;
         self.actor_opt.load_state("opt.actor", tensors, optimizer_steps[1])?;
         self.alpha_opt.load_state("opt.alpha", tensors, optimizer_steps[2])?;
@@ -423,9 +455,24 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
         Ok(())
     }
 
-    /// The policy's weights as safetensors bytes, for actors and `dvnav eval`.
+    /// The online policy's weights as safetensors bytes: what the actors act with.
     pub fn policy_safetensors(&self) -> anyhow::Result<Vec<u8>> {
         dvnav_nav::nets::varmap_to_safetensors(&self.nets.actor.vars)
+    }
+
+    /// The run's agent as safetensors bytes, for checkpoints (`dvnav eval`, `dvnav serve`) and
+    /// the training-time evaluation: the policy average θ̄ when `sac.policy_average_tau` > 0,
+    /// else the online policy.
+    pub fn agent_safetensors(&self) -> anyhow::Result<Vec<u8>> {
+        match &self.average {
+            Some(avg) => avg.safetensors(),
+            None => self.policy_safetensors(),
+        }
+    }
+
+    /// Whether the agent is a policy average rather than the online policy.
+    pub fn averages_policy(&self) -> bool {
+        self.average.is_some()
     }
 
     /// Metrics of the most recent update.
@@ -433,6 +480,9 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
         self.last
     }
 }
+
+/// Prefix of θ̄'s tensors in a checkpoint's state.
+const AVERAGE_PREFIX: &str = "actor_average";
 
 /// A shard's part of a batch mean: the shard's own mean times its share of the rows.
 fn share_of(mean: Tensor, share: f64) -> Result<Tensor> {
@@ -683,6 +733,67 @@ mod tests {
         assert_eq!(fresh.policy_safetensors().unwrap(), a.policy_safetensors().unwrap());
         assert_eq!(fresh.updates(), 2);
         assert_eq!(fresh.optimizer_steps(), a.optimizer_steps());
+    }
+
+    /// `sac.policy_average_tau`: off, the agent is the online policy; on, the agent is θ̄,
+    /// which moves at the policy updates only (every `policy_delay`-th), stays between the
+    /// start and the online weights, and survives a checkpoint's state into a fresh learner.
+    #[test]
+    fn the_policy_average_is_the_agent_and_round_trips() {
+        let cfg = dvnav_config::Config::default();
+        let batch = tiny_batch(&cfg);
+        let off = learner(1);
+        assert!(!off.averages_policy());
+        assert_eq!(off.agent_safetensors().unwrap(), off.policy_safetensors().unwrap());
+        let avg_learner = |seed: u64| {
+            let sac = dvnav_config::SacConfig { policy_average_tau: 0.3, ..cfg.sac.clone() };
+            let nets = SacNetworks::new(&cfg, 3, &Device::Cpu).unwrap();
+            SacLearner::new(nets, sac, Device::Cpu, seed).unwrap()
+        };
+        let mut a = avg_learner(1);
+        let start = a.agent_safetensors().unwrap();
+        assert_eq!(start, a.policy_safetensors().unwrap(), "θ̄ starts at θ");
+        let flat = |bytes: &[u8]| -> Vec<f32> {
+            let mut m: Vec<_> = candle_core::safetensors::load_buffer(bytes, &Device::Cpu)
+                .unwrap()
+                .into_iter()
+                .collect();
+            m.sort_by(|x, y| x.0.cmp(&y.0));
+            m.iter().flat_map(|(_, t)| t.flatten_all().unwrap().to_vec1::<f32>().unwrap()).collect()
+        };
+        // Update 0 updates the policy (policy_delay 2), update 1 does not.
+        a.update(&batch).unwrap();
+        let after_first = a.agent_safetensors().unwrap();
+        assert_ne!(after_first, start);
+        assert_ne!(after_first, a.policy_safetensors().unwrap(), "θ̄ lags θ");
+        let (s0, a1, p1) =
+            (flat(&start), flat(&after_first), flat(&a.policy_safetensors().unwrap()));
+        let worst = s0
+            .iter()
+            .zip(&a1)
+            .zip(&p1)
+            .map(|((s, m), p)| (m - (0.7 * s + 0.3 * p)).abs())
+            .fold(0f32, f32::max);
+        assert!(worst < 1e-6, "θ̄ = 0.3 θ + 0.7 θ̄₀ up to rounding: {worst}");
+        a.update(&batch).unwrap();
+        assert_eq!(a.agent_safetensors().unwrap(), after_first, "no policy update, no move");
+        a.update(&batch).unwrap();
+        assert_ne!(a.agent_safetensors().unwrap(), after_first);
+        // Into a fresh learner through the checkpoint's tensors.
+        let saved: std::collections::HashMap<String, Tensor> =
+            a.state_tensors().into_iter().collect();
+        assert!(saved.keys().any(|k| k.starts_with("actor_average.")));
+        let mut fresh = avg_learner(9);
+        fresh.load_state(&saved, a.updates(), a.optimizer_steps()).unwrap();
+        assert_eq!(fresh.agent_safetensors().unwrap(), a.agent_safetensors().unwrap());
+        // A state saved without an average starts θ̄ at its policy.
+        let mut no_avg = learner(1);
+        no_avg.update(&batch).unwrap();
+        let plain: std::collections::HashMap<String, Tensor> =
+            no_avg.state_tensors().into_iter().collect();
+        let mut turned_on = avg_learner(9);
+        turned_on.load_state(&plain, 1, no_avg.optimizer_steps()).unwrap();
+        assert_eq!(turned_on.agent_safetensors().unwrap(), no_avg.policy_safetensors().unwrap());
     }
 
     #[test]

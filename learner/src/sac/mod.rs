@@ -3,6 +3,7 @@
 //! The hyper-parameters are [`dvnav_config::SacConfig`], a section of the run's one
 //! config file.
 
+pub mod average;
 pub mod learning;
 pub mod networks;
 pub mod optim;

@@ -205,6 +205,7 @@ fn train(
         learning_starts: learning_starts as u64,
         n_step: 1,
         bc_weight: 0.0,
+        policy_average_tau: 0.0,
     };
     let nets = SacNetworks::build(
         &dev,
