@@ -26,7 +26,7 @@ impl PolicyAverage {
     pub fn start(policy: &[(String, Var)], tau: f64) -> Result<Self> {
         let tensors = policy
             .iter()
-            .map(|(n, v)| Ok((n.clone(), v.as_tensor().copy()?)))
+            .map(|(n, v)| Ok((n.clone(), v.as_tensor().copy()?.detach())))
             .collect::<Result<Vec<_>>>()?;
         Ok(Self { tensors, tau })
     }
@@ -36,7 +36,11 @@ impl PolicyAverage {
         debug_assert_eq!(self.tensors.len(), policy.len());
         for ((name, avg), (pname, v)) in self.tensors.iter_mut().zip(policy) {
             debug_assert_eq!(name, pname);
-            *avg = ((&*avg * (1.0 - self.tau))? + (v.as_tensor() * self.tau)?)?;
+            // Detached: an op on a variable records its inputs for backprop, so an undetached
+            // θ̄ would hold the previous θ̄, and so on back to the start: a copy of the policy
+            // per update kept alive (g22's first run grew to 23 GB in 16k updates and was
+            // killed for memory).
+            *avg = ((&*avg * (1.0 - self.tau))? + (v.as_tensor() * self.tau)?)?.detach();
         }
         Ok(())
     }
@@ -58,7 +62,7 @@ impl PolicyAverage {
                     avg.dims()
                 );
             }
-            *avg = t.to_device(avg.device())?.to_dtype(avg.dtype())?;
+            *avg = t.to_device(avg.device())?.to_dtype(avg.dtype())?.detach();
         }
         Ok(())
     }
@@ -95,6 +99,8 @@ mod tests {
         assert_eq!(values(&avg), vec![vec![2.0, 3.0], vec![-3.0]]);
         avg.update(&policy).unwrap();
         assert_eq!(values(&avg), vec![vec![2.75, 3.75], vec![-2.25]]);
+        // No backprop graph behind θ̄: nothing of earlier updates is kept alive by it.
+        assert!(avg.tensors().iter().all(|(_, t)| !t.track_op()));
         // τ = 1 is the online policy itself.
         let mut same = PolicyAverage::start(&policy, 1.0).unwrap();
         policy[1].1.set(&Tensor::new(&[7.0f32], &Device::Cpu).unwrap()).unwrap();
