@@ -543,6 +543,11 @@ mod tests {
     use super::*;
     use candle_core::Device;
 
+    /// A snapshot of one policy (no policy average).
+    fn snapshot(updates: u64, env_steps: u64, policy_version: u64, policy: Vec<u8>) -> Snapshot {
+        Snapshot { updates, env_steps, policy_version, policy, online: None }
+    }
+
     fn tiny_config() -> Config {
         let mut cfg = Config::default();
         cfg.env.max_steps = 30;
@@ -563,22 +568,10 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let ev = Evaluator::start(&cfg, dir.path()).unwrap().unwrap();
         let policy = fresh_policy(&cfg);
-        assert!(ev.submit(Snapshot {
-            updates: 10,
-            env_steps: 40,
-            policy_version: 3,
-            policy: policy.clone(),
-            online: None
-        }));
+        assert!(ev.submit(snapshot(10, 40, 3, policy.clone())));
         ev.finish();
         let ev = Evaluator::start(&cfg, dir.path()).unwrap().unwrap();
-        assert!(ev.submit(Snapshot {
-            updates: 20,
-            env_steps: 80,
-            policy_version: 0,
-            policy,
-            online: None
-        }));
+        assert!(ev.submit(snapshot(20, 80, 0, policy)));
         drop(ev);
         let text = std::fs::read_to_string(dir.path().join("eval.csv")).unwrap();
         let lines: Vec<&str> = text.lines().collect();
@@ -611,13 +604,7 @@ mod tests {
         // the shipped agent's twelve robots all arrive by the paper's routes.
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/meta-r0.2");
         let model = dvnav_nav::policy::read_policy(&root).unwrap();
-        let snap = |policy: Vec<u8>| Snapshot {
-            updates: 2,
-            env_steps: 5,
-            policy_version: 1,
-            policy,
-            online: None,
-        };
+        let snap = |policy: Vec<u8>| snapshot(2, 5, 1, policy);
         let robots = evaluate_gate(&model.config, &snap(model.weights.clone())).unwrap();
         let radii: Vec<f64> = robots.iter().map(|r| r.radius).collect();
         assert_eq!(radii.len(), 12, "{radii:?}");
@@ -673,13 +660,7 @@ mod tests {
         cfg.learner.eval_gate = false;
         let dir = tempfile::tempdir().unwrap();
         let ev = Evaluator::start(&cfg, dir.path()).unwrap().unwrap();
-        assert!(ev.submit(Snapshot {
-            updates: 10,
-            env_steps: 40,
-            policy_version: 3,
-            policy: fresh_policy(&cfg),
-            online: None
-        }));
+        assert!(ev.submit(snapshot(10, 40, 3, fresh_policy(&cfg))));
         ev.finish();
         assert!(dir.path().join("eval.csv").exists() && !dir.path().join("gate.csv").exists());
         assert!(!dir.path().join(GATE_ONLINE_CSV).exists());
@@ -707,13 +688,7 @@ mod tests {
             rates: rates.clone(),
             route: None,
         };
-        let snap = Snapshot {
-            updates: 10,
-            env_steps: 40,
-            policy_version: 3,
-            policy: vec![],
-            online: None,
-        };
+        let snap = snapshot(10, 40, 3, vec![]);
         append_csv(&path, &snap, &[room("env0"), room("env3")], 1.234).unwrap();
         let text = std::fs::read_to_string(&path).unwrap();
         assert_eq!(
@@ -740,13 +715,7 @@ mod tests {
         assert!(Evaluator::start(&cfg, Path::new("/nonexistent")).unwrap().is_none());
         let cfg = tiny_config();
         let rooms = vec![vec![Room::builtin("env0").unwrap()]];
-        let snap = Snapshot {
-            updates: 1,
-            env_steps: 1,
-            policy_version: 0,
-            policy: b"junk".to_vec(),
-            online: None,
-        };
+        let snap = snapshot(1, 1, 0, b"junk".to_vec());
         assert!(evaluate(&cfg, &rooms, &snap, None).is_err());
     }
 
@@ -767,13 +736,7 @@ mod tests {
             ]
         );
         assert_eq!(names(&stages[1]), ["env3"]);
-        let snap = Snapshot {
-            updates: 1,
-            env_steps: 1,
-            policy_version: 0,
-            policy: fresh_policy(&cfg),
-            online: None,
-        };
+        let snap = snapshot(1, 1, 0, fresh_policy(&cfg));
         let (rows, wall) = evaluate(&cfg, &stages, &snap, None).unwrap();
         // One row per evaluated room, stage 0's first; its 6 episodes spread 2, 2, 1, 1; the
         // route where the room has one (env0, env3; generated rooms have none).
@@ -816,13 +779,7 @@ mod tests {
     fn the_same_policy_scores_the_same_every_time() {
         let cfg = tiny_config();
         let rooms = vec![vec![Room::builtin("env1").unwrap()]];
-        let snap = Snapshot {
-            updates: 1,
-            env_steps: 1,
-            policy_version: 0,
-            policy: fresh_policy(&cfg),
-            online: None,
-        };
+        let snap = snapshot(1, 1, 0, fresh_policy(&cfg));
         let (a, _) = evaluate(&cfg, &rooms, &snap, None).unwrap();
         let (b, _) = evaluate(&cfg, &rooms, &snap, None).unwrap();
         assert_eq!(a, b);
