@@ -3,7 +3,8 @@
 //! Layout: `OUT/checkpoints/ckpt-<updates, 10 digits>/` with `state.safetensors` (networks,
 //! targets, log α, optimizer moments), `policy.safetensors` (the run's agent alone, what `dvnav
 //! eval` and `dvnav serve` load: the policy average θ̄ when `sac.policy_average_tau` > 0, then
-//! beside `policy-online.safetensors`, the online policy the actors had), `meta.json` (counters, curriculum, the learner's two random generators),
+//! beside `policy-online.safetensors`, the online policy the actors had), `meta.json`
+//! (counters, curriculum, the learner's two random generators),
 //! `config.toml`, and `replay.safetensors` when `replay.save_in_checkpoint` is on. A
 //! checkpoint is written into a `.tmp` directory and renamed into place, so a crash mid-write
 //! never leaves a directory with the final name; readers only consider directories with a

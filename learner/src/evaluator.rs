@@ -118,15 +118,14 @@ impl Evaluator {
                     Err(e) => tracing::error!(updates = snap.updates, error = %format!("{e:#}"), "evaluation failed"),
                 }
                 if cfg.learner.eval_gate {
-                    let online = snap.online.as_ref().map(|w| Snapshot { policy: w.clone(), online: None, ..snap.clone() });
-                    let mut gates = vec![(GATE_CSV, "agent", &snap)];
-                    gates.extend(online.as_ref().map(|o| (GATE_ONLINE_CSV, "online policy", o)));
-                    for (file, policy, snap) in gates {
+                    let mut gates = vec![(GATE_CSV, "agent", &snap.policy)];
+                    gates.extend(snap.online.as_ref().map(|w| (GATE_ONLINE_CSV, "online policy", w)));
+                    for (file, policy, weights) in gates {
                         let csv = out.join(file);
-                        match pool.install(|| evaluate_gate(&cfg, snap)) {
+                        match pool.install(|| evaluate_gate(&cfg, weights)) {
                             Ok(robots) => {
-                                log_gate(snap, policy, &robots);
-                                report_write(&csv, append_gate_csv(&csv, snap, &robots), on_write_failure.as_ref());
+                                log_gate(&snap, policy, &robots);
+                                report_write(&csv, append_gate_csv(&csv, &snap, &robots), on_write_failure.as_ref());
                             }
                             Err(e) => tracing::error!(updates = snap.updates, policy, error = %format!("{e:#}"), "the gate test failed"),
                         }
@@ -293,11 +292,12 @@ fn report_write(path: &Path, written: anyhow::Result<()>, on_write_failure: Opti
     }
 }
 
-/// The paper's gate test on the policy of `snap` (`learner.eval_gate`): the twelve robots of
-/// [`GATE_RADII`] on the gate room's route, each through DVST at μ = R / R_m, in the clean
+/// The paper's gate test on the policy weights `policy` (safetensors bytes;
+/// `learner.eval_gate`): the twelve robots of [`GATE_RADII`] on the gate room's route, each
+/// through DVST at μ = R / R_m, in the clean
 /// simulator `dvnav eval --scenario gate` uses (no training robustness, varied robots or
 /// subgoals). One result per robot, in radius order.
-pub fn evaluate_gate(cfg: &Config, snap: &Snapshot) -> anyhow::Result<Vec<RobotResult>> {
+pub fn evaluate_gate(cfg: &Config, policy: &[u8]) -> anyhow::Result<Vec<RobotResult>> {
     let room = Room::builtin("gate")?;
     let route = room
         .spec()
@@ -311,7 +311,7 @@ pub fn evaluate_gate(cfg: &Config, snap: &Snapshot) -> anyhow::Result<Vec<RobotR
     let mut robots = radii
         .iter()
         .map(|&r| {
-            let agent = MetaAgent::from_safetensors(&snap.policy, cfg)?;
+            let agent = MetaAgent::from_safetensors(policy, cfg)?;
             let robot = VariedRobot { meta, ..VariedRobot::new(Footprint::circle(r)) };
             Dvst::for_run(agent, &cfg.env, robot)
         })
@@ -604,8 +604,7 @@ mod tests {
         // the shipped agent's twelve robots all arrive by the paper's routes.
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/meta-r0.2");
         let model = dvnav_nav::policy::read_policy(&root).unwrap();
-        let snap = |policy: Vec<u8>| snapshot(2, 5, 1, policy);
-        let robots = evaluate_gate(&model.config, &snap(model.weights.clone())).unwrap();
+        let robots = evaluate_gate(&model.config, &model.weights).unwrap();
         let radii: Vec<f64> = robots.iter().map(|r| r.radius).collect();
         assert_eq!(radii.len(), 12, "{radii:?}");
         assert!((radii[0] - 0.20).abs() < 1e-9 && (radii[11] - 0.75).abs() < 1e-9, "{radii:?}");
@@ -613,7 +612,7 @@ mod tests {
         assert!(failed.is_empty(), "{failed:?}");
         // An untrained policy does not pass it.
         let cfg = tiny_config();
-        let fresh = evaluate_gate(&cfg, &snap(fresh_policy(&cfg))).unwrap();
+        let fresh = evaluate_gate(&cfg, &fresh_policy(&cfg)).unwrap();
         assert!(fresh.iter().filter(|r| r.passes_gate_test()).count() < 12);
     }
 
