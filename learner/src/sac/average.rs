@@ -14,6 +14,16 @@
 
 use candle_core::{Result, Tensor, Var};
 
+/// One Polyak step, `τ·online + (1 − τ)·average`: the policy average's and the target
+/// critics' (`super::learning::soft_update`) update.
+///
+/// Detached: an op on a variable records its inputs for backprop, so an undetached average
+/// would hold the previous one, and so on back to the start: a copy of the weights per update
+/// kept alive (g22's first run grew to 23 GB in 16k updates and was killed for memory).
+pub fn polyak(average: &Tensor, online: &Tensor, tau: f64) -> Result<Tensor> {
+    Ok(((average * (1.0 - tau))? + (online * tau)?)?.detach())
+}
+
 /// θ̄ and its rate τ_π.
 pub struct PolicyAverage {
     /// `(name, θ̄ tensor)`, sorted by name like [`super::networks::Owned::named_vars`].
@@ -36,11 +46,7 @@ impl PolicyAverage {
         debug_assert_eq!(self.tensors.len(), policy.len());
         for ((name, avg), (pname, v)) in self.tensors.iter_mut().zip(policy) {
             debug_assert_eq!(name, pname);
-            // Detached: an op on a variable records its inputs for backprop, so an undetached
-            // θ̄ would hold the previous θ̄, and so on back to the start: a copy of the policy
-            // per update kept alive (g22's first run grew to 23 GB in 16k updates and was
-            // killed for memory).
-            *avg = ((&*avg * (1.0 - self.tau))? + (v.as_tensor() * self.tau)?)?.detach();
+            *avg = polyak(avg, v.as_tensor(), self.tau)?;
         }
         Ok(())
     }

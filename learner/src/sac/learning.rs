@@ -15,7 +15,7 @@
 //! `d` is *termination* (success or collision) only: a timeout is a truncation and still
 //! bootstraps.
 
-use super::average::PolicyAverage;
+use super::average::{PolicyAverage, polyak};
 use super::networks::{GaussianPolicy, Owned, QFunction, SacNetworks};
 use super::optim::Adam;
 use super::shards::{self, Workers};
@@ -112,7 +112,7 @@ pub fn temperature_loss(
 pub fn soft_update<Q>(target: &Owned<Q>, online: &Owned<Q>, tau: f64) -> Result<()> {
     for ((tn, t), (on, o)) in target.named_vars().iter().zip(online.named_vars().iter()) {
         debug_assert_eq!(tn, on);
-        t.set(&((t.as_tensor() * (1.0 - tau))? + (o.as_tensor() * tau)?)?)?;
+        t.set(&polyak(t.as_tensor(), o.as_tensor(), tau)?)?;
     }
     Ok(())
 }
