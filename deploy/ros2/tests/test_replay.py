@@ -15,11 +15,11 @@ from conftest import REPO, TYPES, T, corridor_scan, goal_pose, header, odometry,
 
 def write_bag(
     path, scans=40, scan_topic="/scan", odom_type="nav_msgs/msg/Odometry",
-    storage=StoragePlugin.MCAP, goals=(), tf_static=(),
+    storage=StoragePlugin.MCAP, goals=(), tf_static=(), first_odom_twist=None,
 ):
     """10 Hz scans and 20 Hz odometry (the first odometry 0.12 s in) of a robot driving from
     (0, 0) to (2, 0) at 0.5 m/s along a corridor 2 m wide; `goals`: (log time s, x, y) sent on
-    /goal_pose."""
+    /goal_pose; `first_odom_twist`: (v, ω) of the first odometry message instead."""
     with Writer(path, version=8, storage_plugin=storage) as w:
         scan_c = w.add_connection(scan_topic, "sensor_msgs/msg/LaserScan", typestore=TYPES)
         odom_c = w.add_connection("/odom", odom_type, typestore=TYPES)
@@ -47,7 +47,8 @@ def write_bag(
             events.append((t, scan_c, corridor_scan(t, y=0.0, yaw=0.0)))
         for k in range(3, 2 * scans):
             t = 0.05 * k - 0.03
-            events.append((t, odom_c, odometry(t, min(0.5 * t, 2.0), 0.0, 0.0, v=0.5)))
+            v, omega = first_odom_twist if k == 3 and first_odom_twist else (0.5, 0.0)
+            events.append((t, odom_c, odometry(t, min(0.5 * t, 2.0), 0.0, 0.0, v=v, omega=omega)))
         for t, c, msg in sorted(events, key=lambda e: e[0]):
             w.write(c, int(1e9 + t * 1e9), TYPES.serialize_cdr(msg, msg.__msgtype__))
     return path
@@ -124,6 +125,19 @@ def test_topics_without_the_slash_and_a_bag_without_odometry(dvnav, tmp_path):
     assert "fixed sensor" in r.stderr, r.stderr
     rows = list(csv.DictReader(out.open()))
     assert len(rows) == 12 and all(float(row["x"]) == 0.0 and float(row["odom_v"]) == 0.0 for row in rows)
+
+
+def test_odometry_no_robot_could_send_is_passed_over(dvnav, tmp_path):
+    """A public bag of a real Neato opens with one odometry message saying v = 1,975 m/s: the
+    replay goes on with the next plausible one, and says so."""
+    bag = write_bag(tmp_path / "bag", scans=12, first_odom_twist=(1975.4, -609.7))
+    out = tmp_path / "c.csv"
+    r = replay(dvnav, bag, "--goal", "3,0", "--out", str(out))
+    assert "passed over 1 odometry message on /odom" in r.stderr and "v = 1975.4 m/s" in r.stderr, r.stderr
+    rows = list(csv.DictReader(out.open()))
+    # The scan at 0.2 s takes the odometry of 0.17 s, not the glitch of 0.12 s.
+    assert len(rows) == 10 and all(float(row["odom_v"]) == 0.5 for row in rows), rows
+    assert float(rows[0]["x"]) == pytest.approx(0.5 * 0.17, abs=1e-9)
 
 
 def write_bag_with_plans(path, plans, frame="odom", scans=40):

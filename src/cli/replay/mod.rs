@@ -15,7 +15,7 @@ mod ros;
 
 use crate::render::replay::ReplayFigure;
 use clap::Args;
-use dvnav_nav::dvst::controller::{RobotInput, Scan};
+use dvnav_nav::dvst::controller::{MAX_SPEED, RobotInput, Scan};
 use dvnav_nav::dvst::{LaserScan, SensorSetup};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -125,6 +125,9 @@ struct Replayed {
     rows: Vec<CommandRow>,
     /// Scans before the first odometry: nothing to say where the robot was.
     skipped: usize,
+    /// Odometry messages no robot could have sent (see [`ros::Odometry::implausible`]),
+    /// passed over, and why the first was.
+    implausible: (usize, Option<String>),
     /// Each row's scan, in the sensor frame, for the figure.
     scans: Vec<ros::LaserScan>,
     /// Every route taken, in order (odometry frame).
@@ -187,6 +190,14 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<ExitCode> {
         }
     );
     let out = replay(&ctl, rec, args.goal)?;
+    if let (n @ 1.., Some(first)) = &out.implausible {
+        eprintln!(
+            "replay: passed over {n} odometry message{} on {} that no robot could have sent (the \
+             first at {first}); each scan takes the latest plausible one",
+            if *n == 1 { "" } else { "s" },
+            args.odom_topic
+        );
+    }
     anyhow::ensure!(
         !out.rows.is_empty(),
         "{}: every scan comes before the first odometry message; nothing to replay",
@@ -289,6 +300,7 @@ fn replay(
     let mut out = Replayed {
         rows: Vec::new(),
         skipped: 0,
+        implausible: (0, None),
         scans: Vec::new(),
         plans: Vec::new(),
         goal: goal.unwrap_or_default(),
@@ -297,8 +309,14 @@ fn replay(
     let mut route_goal: Option<[f64; 2]> = None;
     let mut topic_goal: Option<[f64; 2]> = None;
     for (k, (t, scan)) in rec.scans.into_iter().enumerate() {
-        while let Some((_, o)) = odom.next_if(|(to, _)| *to <= t) {
-            latest = Some(o);
+        while let Some((to, o)) = odom.next_if(|(to, _)| *to <= t) {
+            match o.implausible(MAX_SPEED) {
+                None => latest = Some(o),
+                Some(why) => {
+                    out.implausible.0 += 1;
+                    out.implausible.1.get_or_insert(format!("log time {to} ns: {why}"));
+                }
+            }
         }
         while let Some((tp, path)) = plans.next_if(|(tp, _)| *tp <= t) {
             route_goal = take_route(ctl, *tp, path, odom_frame.as_deref(), &mut out.plans)?;

@@ -153,6 +153,20 @@ impl Odometry {
             twist: TwistWithCovariance { linear: zero, angular: zero, covariance },
         }
     }
+
+    /// Why no robot could be where and how this message says (a non-finite pose, a speed
+    /// beyond what the controller accepts), or `None`. Real drivers publish such messages: the
+    /// first odometry of a public bag of a Neato says v = 1,975 m/s, ω = −610 rad/s, and every
+    /// later one is plausible.
+    pub fn implausible(&self, max_speed: f64) -> Option<String> {
+        let (p, q) = (self.pose.position, self.pose.orientation);
+        if ![p.x, p.y, q.x, q.y, q.z, q.w].iter().all(|x| x.is_finite()) {
+            return Some(format!("pose ({}, {}) is not finite", p.x, p.y));
+        }
+        let (v, w) = (self.twist.linear.x, self.twist.angular.z);
+        (!(v.is_finite() && w.is_finite() && v.abs() <= max_speed && w.abs() <= max_speed))
+            .then(|| format!("v = {v:.1} m/s, ω = {w:.1} rad/s (bound ±{max_speed})"))
+    }
 }
 
 /// A CDR message with its 4-byte encapsulation header (either byte order), as a ROS 2 bag
@@ -172,6 +186,26 @@ mod tests {
         for yaw in [0.0, 0.5, -2.0, 3.0] {
             assert!((q(yaw).yaw() - yaw).abs() < 1e-12, "{yaw}");
         }
+    }
+
+    #[test]
+    fn odometry_no_robot_could_have_is_named() {
+        let mut o = Odometry::at_rest();
+        assert_eq!(o.implausible(1e3), None);
+        o.twist.linear.x = 1975.4;
+        o.twist.angular.z = -609.7;
+        let why = o.implausible(1e3).unwrap();
+        assert!(why.contains("v = 1975.4 m/s") && why.contains("±1000"), "{why}");
+        o.twist.linear.x = 0.3;
+        assert_eq!(o.implausible(1e3), None, "ω = −609.7 rad/s is within the bound");
+        o.twist.angular.z = 1e4;
+        assert!(o.implausible(1e3).is_some(), "ω alone");
+        o.twist.angular.z = f64::NAN;
+        assert!(o.implausible(1e3).is_some());
+        o.twist.angular.z = 0.0;
+        assert_eq!(o.implausible(1e3), None);
+        o.pose.position.y = f64::INFINITY;
+        assert!(o.implausible(1e3).unwrap().contains("not finite"));
     }
 
     /// A LaserScan encoded by hand as CDR little-endian (XCDR1, the ROS 2 default): every
