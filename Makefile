@@ -18,9 +18,9 @@ test:
 	CANDLE_NUM_THREADS=1 $(CARGO) test --workspace --doc
 
 # The SAC learning test with a known answer: pendulum swing-up to a mean return >= -250 within
-# 20,000 steps (learner/tests/sac/pendulum.rs), in fp32 and in bf16 (`learner.precision`), the two
-# side by side on the 2 cores: ~9.5 min on the 2-core dev machine; too slow for `make test`, so
-# CI runs it after. One candle thread: its spin-barrier pool and rayon matmuls
+# 20,000 steps (learner/tests/sac/pendulum.rs; each run stops at the bar, ~10,600 steps), in fp32
+# and in bf16 (`learner.precision`), the two side by side on the 2 cores: ~3 min on the 2-core
+# dev machine; too slow for `make test`, so CI runs it after. One candle thread: its spin-barrier pool and rayon matmuls
 # made the same test 8x slower on a busy 2-core machine.
 test-learning:
 	# --workspace (not -p): the same feature set as `make test`, so nothing is rebuilt.
