@@ -234,7 +234,7 @@ fn write_into(
         r.map_err(|e| anyhow::anyhow!("cannot write {}: {e}", tmp.join(what).display()))
     };
     io("", std::fs::create_dir_all(tmp))?;
-    let state = safetensors::tensor::serialize(learner.state_tensors(), None)?;
+    let state = safetensors::tensor::serialize(learner.state_tensors()?, None)?;
     io("state.safetensors", std::fs::write(tmp.join("state.safetensors"), state))?;
     let agent = learner.agent_safetensors()?;
     io(POLICY_FILE, std::fs::write(tmp.join(POLICY_FILE), agent))?;

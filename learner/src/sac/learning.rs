@@ -380,7 +380,7 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
 
     /// Named tensors of everything an exact resume needs besides the counters: networks,
     /// targets, log α and every optimizer's moments.
-    pub fn state_tensors(&self) -> Vec<(String, Tensor)> {
+    pub fn state_tensors(&self) -> Result<Vec<(String, Tensor)>> {
         let mut out = Vec::new();
         for (prefix, vars) in self.network_vars() {
             out.extend(
@@ -393,10 +393,10 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
                 avg.tensors().iter().map(|(n, t)| (format!("{AVERAGE_PREFIX}.{n}"), t.clone())),
             );
         }
-        out.extend(self.critic_opt.state_tensors("opt.critic"));
-        out.extend(self.actor_opt.state_tensors("opt.actor"));
-        out.extend(self.alpha_opt.state_tensors("opt.alpha"));
-        out
+        out.extend(self.critic_opt.state_tensors("opt.critic")?);
+        out.extend(self.actor_opt.state_tensors("opt.actor")?);
+        out.extend(self.alpha_opt.state_tensors("opt.alpha")?);
+        Ok(out)
     }
 
     /// Optimizer step counts (critic, actor, alpha), stored beside [`Self::state_tensors`].
@@ -578,7 +578,7 @@ mod tests {
         let batch = varied_batch(&cfg, 40);
         let weights = |l: &SacLearner| -> Vec<f32> {
             let mut all = Vec::new();
-            for (_, t) in l.state_tensors() {
+            for (_, t) in l.state_tensors().unwrap() {
                 all.extend(t.flatten_all().unwrap().to_vec1::<f32>().unwrap());
             }
             all
@@ -727,7 +727,7 @@ mod tests {
             a.update(&batch).unwrap();
         }
         let saved: std::collections::HashMap<String, Tensor> =
-            a.state_tensors().into_iter().collect();
+            a.state_tensors().unwrap().into_iter().collect();
         let mut fresh = learner(9);
         fresh.load_state(&saved, a.updates(), a.optimizer_steps()).unwrap();
         assert_eq!(fresh.policy_safetensors().unwrap(), a.policy_safetensors().unwrap());
@@ -781,7 +781,7 @@ mod tests {
         assert_ne!(a.agent_safetensors().unwrap(), after_first);
         // Into a fresh learner through the checkpoint's tensors.
         let saved: std::collections::HashMap<String, Tensor> =
-            a.state_tensors().into_iter().collect();
+            a.state_tensors().unwrap().into_iter().collect();
         assert!(saved.keys().any(|k| k.starts_with("actor_average.")));
         let mut fresh = avg_learner(9);
         fresh.load_state(&saved, a.updates(), a.optimizer_steps()).unwrap();
@@ -790,7 +790,7 @@ mod tests {
         let mut no_avg = learner(1);
         no_avg.update(&batch).unwrap();
         let plain: std::collections::HashMap<String, Tensor> =
-            no_avg.state_tensors().into_iter().collect();
+            no_avg.state_tensors().unwrap().into_iter().collect();
         let mut turned_on = avg_learner(9);
         turned_on.load_state(&plain, 1, no_avg.optimizer_steps()).unwrap();
         assert_eq!(turned_on.agent_safetensors().unwrap(), no_avg.policy_safetensors().unwrap());

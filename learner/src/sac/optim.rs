@@ -1,9 +1,13 @@
 //! Adam (Kingma & Ba 2015) over a set of candle variables, with its moments exposed so a
 //! checkpoint can hold everything the next update depends on (candle-nn's optimizers keep
 //! theirs private).
+//!
+//! On the CPU each variable's step is three in-place passes (each moment, then the weight)
+//! rather than a dozen tensor operations that each allocate and write a new tensor; the
+//! arithmetic is the same, bit for bit (tested).
 
 use candle_core::backprop::GradStore;
-use candle_core::{Result, Tensor, Var};
+use candle_core::{CpuStorage, DType, InplaceOp2, InplaceOp3, Layout, Result, Tensor, Var};
 
 /// Adam with bias correction and no weight decay (the policy's L2 term is part of its loss).
 #[derive(Debug)]
@@ -16,14 +20,28 @@ pub struct Adam {
     beta1: f64,
     beta2: f64,
     eps: f64,
+    /// Step with the fused in-place passes where [`fusable`] (off only to test them against
+    /// the tensor expressions).
+    fuse: bool,
 }
 
 impl Adam {
     /// An optimizer for `vars` (named, for checkpoints) with learning rate `lr`.
     pub fn new(vars: Vec<(String, Var)>, lr: f64) -> Result<Self> {
+        // Two allocations each: the moments are updated in place, so no two may share storage.
         let first = vars.iter().map(|(_, v)| v.zeros_like()).collect::<Result<Vec<_>>>()?;
-        let second = first.clone();
-        Ok(Self { vars, first, second, step: 0, lr, beta1: 0.9, beta2: 0.999, eps: 1e-8 })
+        let second = vars.iter().map(|(_, v)| v.zeros_like()).collect::<Result<Vec<_>>>()?;
+        Ok(Self {
+            vars,
+            first,
+            second,
+            step: 0,
+            lr,
+            beta1: 0.9,
+            beta2: 0.999,
+            eps: 1e-8,
+            fuse: true,
+        })
     }
 
     /// One Adam step from the gradients of a backward pass; variables without a gradient are
@@ -40,6 +58,23 @@ impl Adam {
             // update's graph to the next (without this the learner grew by ~7 MB per update
             // until the OOM killer stopped it; see tests/issue_2_adam_memory.rs).
             let g = g.detach();
+            if self.fuse && fusable(&[var.as_tensor(), &g, &self.first[i], &self.second[i]]) {
+                let ema = |beta: f64, square| Ema {
+                    beta: beta as f32,
+                    rest: (1.0 - beta) as f32,
+                    square,
+                };
+                self.first[i].inplace_op2(&g, &ema(self.beta1, false))?;
+                self.second[i].inplace_op2(&g, &ema(self.beta2, true))?;
+                let apply = Apply {
+                    inv_bias1: (1.0 / bias1) as f32,
+                    inv_bias2: (1.0 / bias2) as f32,
+                    eps: self.eps as f32,
+                    lr: self.lr as f32,
+                };
+                var.as_tensor().inplace_op3(&self.first[i], &self.second[i], &apply)?;
+                continue;
+            }
             let m = ((&self.first[i] * self.beta1)? + (&g * (1.0 - self.beta1))?)?.detach();
             let v = ((&self.second[i] * self.beta2)? + (g.sqr()? * (1.0 - self.beta2))?)?.detach();
             let denom = ((&v / bias2)?.sqrt()? + self.eps)?;
@@ -61,14 +96,15 @@ impl Adam {
         self.step
     }
 
-    /// The optimizer state as named tensors: `{name}.m`, `{name}.v` per variable.
-    pub fn state_tensors(&self, prefix: &str) -> Vec<(String, Tensor)> {
+    /// The optimizer state as named tensors: `{name}.m`, `{name}.v` per variable. Copies: the
+    /// moments are updated in place, and a snapshot must not move with them.
+    pub fn state_tensors(&self, prefix: &str) -> Result<Vec<(String, Tensor)>> {
         let mut out = Vec::with_capacity(2 * self.vars.len());
         for (i, (name, _)) in self.vars.iter().enumerate() {
-            out.push((format!("{prefix}.{name}.m"), self.first[i].clone()));
-            out.push((format!("{prefix}.{name}.v"), self.second[i].clone()));
+            out.push((format!("{prefix}.{name}.m"), self.first[i].copy()?));
+            out.push((format!("{prefix}.{name}.v"), self.second[i].copy()?));
         }
-        out
+        Ok(out)
     }
 
     /// Restores moments saved by [`Adam::state_tensors`] and the step count.
@@ -87,10 +123,90 @@ impl Adam {
                 if t.dims() != var.dims() {
                     anyhow::bail!("optimizer tensor `{key}` has the wrong shape");
                 }
-                *slot = t.clone();
+                // A copy: the moments are updated in place, and `tensors` may be another
+                // learner's state.
+                *slot = t.to_dtype(var.dtype())?.copy()?;
             }
         }
         self.step = step;
+        Ok(())
+    }
+}
+
+/// Whether one Adam step can run as the fused in-place passes: f32, contiguous, on the CPU
+/// (elsewhere, such as CUDA, the tensor operations below them).
+fn fusable(ts: &[&Tensor]) -> bool {
+    ts.iter().all(|t| t.device().is_cpu() && t.dtype() == DType::F32 && t.is_contiguous())
+}
+
+/// The contiguous f32 slice of a storage, for the fused passes ([`fusable`] checked it).
+fn f32s<'a>(s: &'a CpuStorage, l: &Layout) -> Result<&'a [f32]> {
+    match (s, l.contiguous_offsets()) {
+        (CpuStorage::F32(x), Some((a, b))) => Ok(&x[a..b]),
+        _ => candle_core::bail!("fused Adam: not a contiguous f32 tensor"),
+    }
+}
+
+fn f32s_mut<'a>(s: &'a mut CpuStorage, l: &Layout) -> Result<&'a mut [f32]> {
+    match (s, l.contiguous_offsets()) {
+        (CpuStorage::F32(x), Some((a, b))) => Ok(&mut x[a..b]),
+        _ => candle_core::bail!("fused Adam: not a contiguous f32 tensor"),
+    }
+}
+
+/// A moment's update in place, one pass: `m ← β·m + (1 − β)·g` (or `g²`). The same f32
+/// operations, in the same order, as the tensor expression of [`Adam::step`]'s other path.
+struct Ema {
+    beta: f32,
+    /// 1 − β, computed in f64 as the tensor expression's scalar is (1 − 0.9f32 is not 0.1f32).
+    rest: f32,
+    square: bool,
+}
+
+impl InplaceOp2 for Ema {
+    fn name(&self) -> &'static str {
+        "adam-moment"
+    }
+
+    fn cpu_fwd(&self, m: &mut CpuStorage, lm: &Layout, g: &CpuStorage, lg: &Layout) -> Result<()> {
+        let (m, g) = (f32s_mut(m, lm)?, f32s(g, lg)?);
+        let (beta, rest) = (self.beta, self.rest);
+        if self.square {
+            m.iter_mut().zip(g).for_each(|(m, g)| *m = *m * beta + (g * g) * rest);
+        } else {
+            m.iter_mut().zip(g).for_each(|(m, g)| *m = *m * beta + g * rest);
+        }
+        Ok(())
+    }
+}
+
+/// The weight's step in place, one pass: `w ← w − lr · (m / b₁) / (√(v / b₂) + ε)`.
+struct Apply {
+    inv_bias1: f32,
+    inv_bias2: f32,
+    eps: f32,
+    lr: f32,
+}
+
+impl InplaceOp3 for Apply {
+    fn name(&self) -> &'static str {
+        "adam-apply"
+    }
+
+    fn cpu_fwd(
+        &self,
+        w: &mut CpuStorage,
+        lw: &Layout,
+        m: &CpuStorage,
+        lm: &Layout,
+        v: &CpuStorage,
+        lv: &Layout,
+    ) -> Result<()> {
+        let (w, m, v) = (f32s_mut(w, lw)?, f32s(m, lm)?, f32s(v, lv)?);
+        for ((w, m), v) in w.iter_mut().zip(m).zip(v) {
+            let denom = (v * self.inv_bias2).sqrt() + self.eps;
+            *w -= ((m * self.inv_bias1) / denom) * self.lr;
+        }
         Ok(())
     }
 }
@@ -113,6 +229,62 @@ mod tests {
             opt.step(&loss.backward().unwrap()).unwrap();
         }
         assert!(opt.first.iter().chain(&opt.second).all(|t| !t.track_op()));
+    }
+
+    #[test]
+    fn the_fused_step_is_the_tensor_step() {
+        // The same variables and gradients through the fused in-place passes and through the
+        // tensor expressions: bit for bit the same weights and moments (the same f32 operations
+        // in the same order).
+        let dev = Device::Cpu;
+        let init = Tensor::randn(0f32, 1.0, (37, 23), &dev).unwrap();
+        let xs: Vec<Tensor> =
+            (0..5).map(|_| Tensor::randn(0f32, 1.0, (8, 37), &dev).unwrap()).collect();
+        let run = |fuse: bool| {
+            let w = Var::from_tensor(&init.copy().unwrap()).unwrap();
+            let b = Var::from_tensor(&Tensor::zeros(23, DType::F32, &dev).unwrap()).unwrap();
+            let mut opt =
+                Adam::new(vec![("w".into(), w.clone()), ("b".into(), b.clone())], 3e-3).unwrap();
+            opt.fuse = fuse;
+            for (k, x) in xs.iter().enumerate() {
+                let y = (x.matmul(w.as_tensor()).unwrap().broadcast_add(b.as_tensor()).unwrap()
+                    * (k as f64 + 1.0))
+                    .unwrap();
+                let loss = y.tanh().unwrap().sqr().unwrap().mean_all().unwrap();
+                opt.step(&loss.backward().unwrap()).unwrap();
+            }
+            opt.state_tensors("o")
+                .unwrap()
+                .into_iter()
+                .chain([("w".into(), w.as_tensor().clone()), ("b".into(), b.as_tensor().clone())])
+                .map(|(n, t)| (n, t.flatten_all().unwrap().to_vec1::<f32>().unwrap()))
+                .collect::<Vec<_>>()
+        };
+        let (fused, tensors) = (run(true), run(false));
+        for ((name, a), (_, b)) in fused.iter().zip(&tensors) {
+            assert_eq!(a, b, "{name}");
+        }
+        assert_ne!(fused[4].1, init.flatten_all().unwrap().to_vec1::<f32>().unwrap(), "it moved");
+    }
+
+    #[test]
+    fn snapshots_and_restores_do_not_move_with_the_moments() {
+        let x = Var::new(&[1.0f32, -1.0], &Device::Cpu).unwrap();
+        let mut opt = Adam::new(vec![("x".into(), x.clone())], 0.01).unwrap();
+        let step = |opt: &mut Adam| {
+            let loss = (x.as_tensor() * 5.0).unwrap().sum_all().unwrap();
+            opt.step(&loss.backward().unwrap()).unwrap();
+        };
+        step(&mut opt);
+        let saved: std::collections::HashMap<String, Tensor> =
+            opt.state_tensors("o").unwrap().into_iter().collect();
+        let before: Vec<f32> = saved["o.x.m"].to_vec1().unwrap();
+        let mut other = Adam::new(vec![("x".into(), x.clone())], 0.01).unwrap();
+        other.load_state("o", &saved, 1).unwrap();
+        step(&mut opt);
+        step(&mut other);
+        assert_eq!(saved["o.x.m"].to_vec1::<f32>().unwrap(), before, "the snapshot stayed");
+        assert_ne!(opt.first[0].to_vec1::<f32>().unwrap(), before);
     }
 
     #[test]

@@ -22,7 +22,7 @@ fn learner(cfg: &Config, seed: u64) -> SacLearner {
 
 /// Everything a learner holds (networks, targets, log α, Adam moments) as safetensors bytes.
 fn everything(l: &SacLearner) -> Vec<u8> {
-    safetensors::tensor::serialize(l.state_tensors(), None).unwrap()
+    safetensors::tensor::serialize(l.state_tensors().unwrap(), None).unwrap()
 }
 
 fn batch(cfg: &Config, k: usize) -> Batch {
