@@ -13,6 +13,10 @@ over the cycles before the goal is reached:
 - **mean |Δω|**: the mean change of the commanded ω between consecutive scans (rad/s per cycle).
 - **the recorded driver's mean |Δω|**: the same for the odometry's ω, for scale: a goal's bearing
   turns with the recorded robot, and the commands follow it.
+- **into returns**: the share of cycles whose command, held for 1 s with the world standing
+  still, drives the disc covering the robot into one of the scan's returns (`dvnav replay`'s
+  `arc_clearance_m` < 0), beside the same for the recorded driver's velocity. This one tests
+  what the controller makes of its scan: heading for the goal alone would not keep it low.
 - **filled**: the mean number of the meta agent's 540 beams no valid reading reached.
 
 The recorded robot was driven by its own controller, not this one, so the scans are what the
@@ -57,7 +61,15 @@ def measure(rows):
         return None
     omegas = [float(r["omega"]) for r in rows]
     recorded = [float(r["odom_omega"]) for r in rows]
+
+    def into(key):
+        # Cycles whose velocity, held for a second, drives the robot's disc into a return.
+        known = [float(r[key]) for r in rows if r[key] != ""]
+        return sum(c < 0 for c in known) / max(len(known), 1)
+
     return {
+        "into_returns": into("arc_clearance_m"),
+        "recorded_into_returns": into("recorded_arc_clearance_m"),
         "cycles": len(rows),
         "toward": sum(map(toward, rows)) / len(rows),
         "mean_abs_domega": sum(abs(b - a) for a, b in zip(omegas, omegas[1:])) / (len(omegas) - 1),
@@ -101,7 +113,8 @@ def main():
                 print(
                     f"{bag}: goal {a.distance:g} m at {b:+.0f}°: toward on {100 * m['toward']:.1f} % of "
                     f"{m['cycles']} cycles, mean |Δω| {m['mean_abs_domega']:.3f} rad/s (recorded "
-                    f"{m['recorded_mean_abs_domega']:.3f}), "
+                    f"{m['recorded_mean_abs_domega']:.3f}), into returns {100 * m['into_returns']:.1f} % "
+                    f"(recorded {100 * m['recorded_into_returns']:.1f} %), "
                     f"{m['filled_beams_mean']:.1f} beams filled"
                 )
             for n in notes:
@@ -112,13 +125,16 @@ def main():
         "toward": sum(r["toward"] * r["cycles"] for r in results) / cycles,
         "mean_abs_domega": sum(r["mean_abs_domega"] * r["cycles"] for r in results) / cycles,
         "recorded_mean_abs_domega": sum(r["recorded_mean_abs_domega"] * r["cycles"] for r in results) / cycles,
+        "into_returns": sum(r["into_returns"] * r["cycles"] for r in results) / cycles,
+        "recorded_into_returns": sum(r["recorded_into_returns"] * r["cycles"] for r in results) / cycles,
         "worst_toward": min(r["toward"] for r in results),
         "worst_mean_abs_domega": max(r["mean_abs_domega"] for r in results),
     }
     print(
         f"pooled over {len(results)} bag-goal pairs, {cycles} cycles: toward on {100 * pooled['toward']:.1f} % "
         f"(worst {100 * pooled['worst_toward']:.1f} %), mean |Δω| {pooled['mean_abs_domega']:.3f} rad/s "
-        f"(worst {pooled['worst_mean_abs_domega']:.3f}; the recorded driver's {pooled['recorded_mean_abs_domega']:.3f})"
+        f"(worst {pooled['worst_mean_abs_domega']:.3f}; the recorded driver's {pooled['recorded_mean_abs_domega']:.3f}), "
+        f"into returns on {100 * pooled['into_returns']:.1f} % (the recorded driver's {100 * pooled['recorded_into_returns']:.1f} %)"
     )
     if a.json:
         with open(a.json, "w") as f:

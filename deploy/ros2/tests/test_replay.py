@@ -78,6 +78,10 @@ def test_commands_at_each_scan_with_the_path_and_arrival(dvnav, tmp_path):
         assert float(row["goal_distance"]) == pytest.approx(2.0 - x, abs=1e-9)
         assert float(row["odom_v"]) == 0.5 and int(row["filled_beams"]) == 0
         assert float(row["nearest_m"]) == pytest.approx(1.0, abs=1e-3), "the walls, 1 m away"
+        # The recorded drive, straight down the middle, keeps 1 − 0.2 m from the walls for the
+        # next second; the controller's command curves no nearer than that, and not into them.
+        assert float(row["recorded_arc_clearance_m"]) == pytest.approx(0.8, abs=1e-3), row
+        assert 0.0 < float(row["arc_clearance_m"]) <= 0.8 + 1e-3, row
         arrived = row["arrived"] == "true"
         # The meta robot itself (no --footprint): tolerance 0.2 m.
         assert arrived == (2.0 - x <= 0.2), row
@@ -296,7 +300,18 @@ def test_the_sensor_mounting_comes_from_tf_static(dvnav, tmp_path):
     tf_cmds = commands(tf_rows)
     assert same(tf_cmds, commands(csvs["file"][0])), "the footprint file's mounting commands"
     assert not same(tf_cmds, commands(csvs["plain"][0])), "the mounting changes the commands"
-    assert csvs["ignored"][0] == csvs["plain"][0] and "replaying with the footprint's" in csvs["ignored"][1]
+    # Ignored, the controller drives as with no /tf_static; the arc clearances still measure the
+    # scan from where /tf_static puts the sensor.
+    def drive(text):
+        keys = ("arc_clearance_m", "recorded_arc_clearance_m")
+        return [{k: v for k, v in r.items() if k not in keys} for r in csv.DictReader(text.splitlines())]
+
+    assert drive(csvs["ignored"][0]) == drive(csvs["plain"][0])
+    assert "replaying with the footprint's" in csvs["ignored"][1]
+    def recorded(text):
+        return [r["recorded_arc_clearance_m"] for r in csv.DictReader(text.splitlines())]
+
+    assert recorded(csvs["ignored"][0]) == recorded(csvs["tf"][0]) != recorded(csvs["plain"][0])
     # The footprint file agrees with /tf_static: nothing to say.
     assert same(commands(csvs["agrees"][0]), tf_cmds) and "/tf_static" not in csvs["agrees"][1], csvs["agrees"][1]
 

@@ -117,6 +117,45 @@ pub struct CommandRow {
     pub filled_beams: usize,
     /// The nearest valid return of the scan (m); empty when it has none.
     pub nearest_m: Option<f64>,
+    /// The least clearance (m) between the disc covering the robot and the scan's returns
+    /// along the arc the command would drive in the next [`ARC_HORIZON_S`] if the world stood
+    /// still; negative: the command drives into a return. Empty without returns.
+    pub arc_clearance_m: Option<f64>,
+    /// The same for the recorded velocity (the robot's own driver), for comparison.
+    pub recorded_arc_clearance_m: Option<f64>,
+}
+
+/// How far ahead (s) [`CommandRow::arc_clearance_m`] follows a command: five control periods of
+/// the meta agent (0.2 s each), about what it takes to stop from v_max at its deceleration.
+pub const ARC_HORIZON_S: f64 = 1.0;
+
+/// The least distance between a disc of `radius` at the poses of the arc `(v, ω)` drives from
+/// `pose` over [`ARC_HORIZON_S`] (sampled every 0.05 s) and `points`, less `radius`; `None`
+/// without points.
+fn arc_clearance(
+    pose: [f64; 3],
+    v: f64,
+    omega: f64,
+    radius: f64,
+    points: &[[f64; 2]],
+) -> Option<f64> {
+    const STEPS: usize = 20;
+    let [x, y, yaw] = pose;
+    let at = |t: f64| {
+        if omega.abs() < 1e-9 {
+            [x + v * t * yaw.cos(), y + v * t * yaw.sin()]
+        } else {
+            let h = yaw + omega * t;
+            [x + v / omega * (h.sin() - yaw.sin()), y - v / omega * (h.cos() - yaw.cos())]
+        }
+    };
+    let centres: Vec<[f64; 2]> =
+        (0..=STEPS).map(|k| at(ARC_HORIZON_S * k as f64 / STEPS as f64)).collect();
+    points
+        .iter()
+        .flat_map(|p| centres.iter().map(move |c| (p[0] - c[0]).hypot(p[1] - c[1])))
+        .min_by(f64::total_cmp)
+        .map(|d| d - radius)
 }
 
 /// What a replay found, for the closing line.
@@ -162,8 +201,14 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<ExitCode> {
         )
     };
     let mut ctl = controller(None)?;
-    if let Some(mount) = tf_static_mount(&rec, &ctl, &args)? {
-        ctl = controller(Some(mount))?;
+    // Where the sensor is, as far as the bag says: what the arc clearances are measured with,
+    // even when `--ignore-tf-static` drives the controller with the footprint's mounting.
+    let mut truth = ctl.footprint(ROBOT).robot.lidar;
+    if let Some([x, y, yaw]) = tf_static_mount(&rec, &ctl, &args)? {
+        (truth.x, truth.y, truth.yaw) = (x, y, yaw);
+        if !args.ignore_tf_static {
+            ctl = controller(Some([x, y, yaw]))?;
+        }
     }
     anyhow::ensure!(
         args.goal.is_some() || !rec.plans.is_empty() || !rec.goals.is_empty(),
@@ -189,7 +234,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<ExitCode> {
             None => "the goal at each path's end or from each goal message".into(),
         }
     );
-    let out = replay(&ctl, rec, args.goal)?;
+    let out = replay(&ctl, rec, args.goal, &truth)?;
     if let (n @ 1.., Some(first)) = &out.implausible {
         eprintln!(
             "replay: passed over {n} odometry message{} on {} that no robot could have sent (the \
@@ -233,7 +278,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<ExitCode> {
 }
 
 /// The sensor's mounting from the bag's `/tf_static` when it differs from the footprint file's
-/// (said on stderr either way it is decided), unless `--ignore-tf-static`.
+/// (said on stderr, with which one the controller drives with).
 fn tf_static_mount(
     rec: &bag::Recording,
     ctl: &dvnav_nav::dvst::DvstController,
@@ -278,7 +323,7 @@ fn tf_static_mount(
         file.y,
         file.yaw.to_degrees()
     );
-    Ok((!args.ignore_tf_static).then_some([tf.x, tf.y, tf.yaw]))
+    Ok(Some([tf.x, tf.y, tf.yaw]))
 }
 
 /// The robot id routes are set for: replay drives one robot.
@@ -288,7 +333,9 @@ fn replay(
     ctl: &dvnav_nav::dvst::DvstController,
     rec: bag::Recording,
     goal: Option<[f64; 2]>,
+    truth: &SensorSetup,
 ) -> anyhow::Result<Replayed> {
+    let radius = ctl.footprint(ROBOT).robot.footprint.bounding_radius();
     let mut odom = rec.odometry.iter().peekable();
     let mut plans = rec.plans.iter().peekable();
     let mut goals = rec.goals.iter().peekable();
@@ -385,7 +432,14 @@ fn replay(
             goal_tolerance: c.goal_tolerance,
             filled_beams: c.filled_beams,
             nearest_m: nearest,
+            arc_clearance_m: None,
+            recorded_arc_clearance_m: None,
         });
+        let row = out.rows.last_mut().expect("just pushed");
+        let points: Vec<[f64; 2]> = returns(row, &scan, truth).collect();
+        let pose = [x, y, yaw];
+        row.arc_clearance_m = arc_clearance(pose, c.v, c.omega, radius, &points);
+        row.recorded_arc_clearance_m = arc_clearance(pose, odom_v, odom_omega, radius, &points);
         out.scans.push(scan);
     }
     Ok(out)
@@ -499,4 +553,33 @@ fn write_rows(path: &Path, rows: &[CommandRow]) -> anyhow::Result<()> {
         w.serialize(r).map_err(|e| err(&e))?;
     }
     w.flush().map_err(|e| err(&e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_arc_clearance_follows_the_command() {
+        // A wall point 1 m ahead; the robot's disc has radius 0.2.
+        let wall = [[1.0, 0.0]];
+        let at_origin = [0.0, 0.0, 0.0];
+        // Standing still: 1 − 0.2.
+        let still = arc_clearance(at_origin, 0.0, 0.0, 0.2, &wall).unwrap();
+        assert!((still - 0.8).abs() < 1e-12, "{still}");
+        // 0.5 m/s straight at it for 1 s: 0.5 m nearer.
+        let ahead = arc_clearance(at_origin, 0.5, 0.0, 0.2, &wall).unwrap();
+        assert!((ahead - 0.3).abs() < 1e-12, "{ahead}");
+        // Into it: negative.
+        assert!(arc_clearance(at_origin, 1.0, 0.0, 0.2, &wall).unwrap() < 0.0);
+        // Turning in place keeps the distance; a quarter turn at v = 0.5 curves away from it.
+        let turn = arc_clearance(at_origin, 0.0, 1.5, 0.2, &wall).unwrap();
+        assert!((turn - 0.8).abs() < 1e-12, "{turn}");
+        let curve = arc_clearance(at_origin, 0.5, std::f64::consts::FRAC_PI_2, 0.2, &wall).unwrap();
+        assert!(curve > 0.3 && curve < 0.8, "{curve}");
+        // The arc starts at the pose, heading as it says: facing away, driving is safe.
+        let away = arc_clearance([0.0, 0.0, std::f64::consts::PI], 0.5, 0.0, 0.2, &wall).unwrap();
+        assert!((away - 0.8).abs() < 1e-12, "{away}");
+        assert_eq!(arc_clearance(at_origin, 0.5, 0.0, 0.2, &[]), None);
+    }
 }
