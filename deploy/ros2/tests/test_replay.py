@@ -2,8 +2,11 @@
 down a corridor towards a goal."""
 
 import csv
+import json
 import math
 import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -367,3 +370,30 @@ def test_a_360_lidar_behind_turned_backwards_with_zero_for_no_return(dvnav, tmp_
     mean_dw = sum(abs(b - a) for a, b in zip(omegas, omegas[1:])) / (len(omegas) - 1)
     print(f"toward the goal on {100 * share:.1f} % of {len(rows)} cycles, mean |dω| {mean_dw:.3f} rad/s")
     assert share >= 0.9 and mean_dw <= 0.1, (share, mean_dw, [(r["v"], r["omega"], r["goal_angle"]) for r in rows])
+
+
+def test_a_real_neato_log_keeps_clear_of_what_it_saw(dvnav, tmp_path):
+    """A real robot's log (tests/data/neato-person-follower: a Neato's 360° LDS 8.4 cm behind
+    the axle, turned backwards, mounted through /tf_static), replayed towards goals 3 m ahead,
+    left, right and behind its first pose by scripts/replay_real_logs.py. Its commands head for
+    the goal and drive into what the robot saw within a second on few cycles (measured: 97.7 %
+    toward, 1.8 % into a return; the recorded driver's 3.3 %); read with the mounting ignored
+    (the scan the wrong way round) they do so on 11.0 %."""
+    bag = Path(__file__).parent / "data" / "neato-person-follower"
+    script = REPO / "scripts" / "replay_real_logs.py"
+
+    def measure(name, *extra):
+        out = tmp_path / f"{name}.json"
+        subprocess.run(
+            [sys.executable, str(script), "--dvnav", str(dvnav), str(bag), "--json", str(out),
+             "--", "--checkpoint", str(REPO / "models/meta-r0.2"), *extra],
+            check=True, capture_output=True, text=True, timeout=300,
+        )
+        return json.loads(out.read_text())["pooled"]
+
+    mounted, ignored = measure("mounted"), measure("ignored", "--ignore-tf-static")
+    assert mounted["cycles"] == 4 * 181, mounted
+    assert mounted["toward"] >= 0.9, mounted
+    assert mounted["into_returns"] <= 0.04, mounted
+    assert mounted["into_returns"] < mounted["recorded_into_returns"], mounted
+    assert ignored["into_returns"] >= 0.07, ignored
