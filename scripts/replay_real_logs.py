@@ -9,7 +9,7 @@ over the cycles before the goal is reached:
 - **toward**: the share of cycles whose command heads for the goal: turning towards its side
   (ω · bearing > 0), or driving forwards (v > 0.05 m/s) while it is in front (|bearing| < 90°);
   a goal within 30° of straight behind counts any turn of |ω| > 0.3 rad/s (either way is towards
-  it). The rule of `deploy/ros2/tests/test_replay.py`.
+  it). `deploy/ros2/tests/test_replay.py` holds a synthesized log to the same rule.
 - **mean |Δω|**: the mean change of the commanded ω between consecutive scans (rad/s per cycle).
 - **the recorded driver's mean |Δω|**: the same for the odometry's ω, for scale: a goal's bearing
   turns with the recorded robot, and the commands follow it.

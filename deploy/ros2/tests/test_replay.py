@@ -15,6 +15,9 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 
 from conftest import REPO, TYPES, T, corridor_scan, goal_pose, header, odometry, quaternion
 
+sys.path.insert(0, str(REPO / "scripts"))
+import replay_real_logs  # noqa: E402  (scripts/ is not a package)
+
 
 def write_bag(
     path, scans=40, scan_topic="/scan", odom_type="nav_msgs/msg/Odometry",
@@ -356,20 +359,12 @@ def test_a_360_lidar_behind_turned_backwards_with_zero_for_no_return(dvnav, tmp_
     out = tmp_path / "c.csv"
     r = replay(dvnav, tmp_path / "bag", "--out", str(out))
     assert "/tf_static mounts `laser` at x = -0.090 m" in r.stderr, r.stderr
-    rows = [row for row in csv.DictReader(out.open()) if row["arrived"] == "false"]
-    assert len(rows) >= 35, len(rows)
-
-    def toward(row):
-        v, w, a = float(row["v"]), float(row["omega"]), float(row["goal_angle"])
-        if abs(a) > math.radians(150):
-            return abs(w) > 0.3  # right behind: turning either way is toward it
-        return (v > 0.05 and math.cos(a) > 0) or w * a > 0
-
-    share = sum(map(toward, rows)) / len(rows)
-    omegas = [float(row["omega"]) for row in rows]
-    mean_dw = sum(abs(b - a) for a, b in zip(omegas, omegas[1:])) / (len(omegas) - 1)
-    print(f"toward the goal on {100 * share:.1f} % of {len(rows)} cycles, mean |dω| {mean_dw:.3f} rad/s")
-    assert share >= 0.9 and mean_dw <= 0.1, (share, mean_dw, [(r["v"], r["omega"], r["goal_angle"]) for r in rows])
+    rows = list(csv.DictReader(out.open()))
+    # The rule scripts/replay_real_logs.py measures real logs with (cycles before arrival).
+    m = replay_real_logs.measure(rows)
+    print(f"toward the goal on {100 * m['toward']:.1f} % of {m['cycles']} cycles, mean |dω| {m['mean_abs_domega']:.3f} rad/s")
+    assert m["cycles"] >= 35, m
+    assert m["toward"] >= 0.9 and m["mean_abs_domega"] <= 0.1, (m, [(r["v"], r["omega"], r["goal_angle"]) for r in rows])
 
 
 def test_a_real_neato_log_keeps_clear_of_what_it_saw(dvnav, tmp_path):

@@ -410,6 +410,8 @@ fn replay(
             .map(|&r| f64::from(r))
             .filter(|r| (f64::from(scan.range_min)..=f64::from(scan.range_max)).contains(r))
             .min_by(f64::total_cmp);
+        let pose = [x, y, yaw];
+        let points: Vec<[f64; 2]> = returns(pose, &scan, truth).collect();
         out.rows.push(CommandRow {
             scan: k,
             time_s: (t - t0) as f64 * 1e-9,
@@ -432,14 +434,9 @@ fn replay(
             goal_tolerance: c.goal_tolerance,
             filled_beams: c.filled_beams,
             nearest_m: nearest,
-            arc_clearance_m: None,
-            recorded_arc_clearance_m: None,
+            arc_clearance_m: arc_clearance(pose, c.v, c.omega, radius, &points),
+            recorded_arc_clearance_m: arc_clearance(pose, odom_v, odom_omega, radius, &points),
         });
-        let row = out.rows.last_mut().expect("just pushed");
-        let points: Vec<[f64; 2]> = returns(row, &scan, truth).collect();
-        let pose = [x, y, yaw];
-        row.arc_clearance_m = arc_clearance(pose, c.v, c.omega, radius, &points);
-        row.recorded_arc_clearance_m = arc_clearance(pose, odom_v, odom_omega, radius, &points);
         out.scans.push(scan);
     }
     Ok(out)
@@ -492,7 +489,12 @@ fn figure(out: &Replayed, lidar: &SensorSetup) -> ReplayFigure {
         plans: out.plans.clone(),
         subgoals: out.rows.iter().filter_map(|r| Some([r.subgoal_x?, r.subgoal_y?])).collect(),
         path: out.rows.iter().map(|r| ([r.x, r.y], r.v)).collect(),
-        returns: out.rows.iter().zip(&out.scans).flat_map(|(r, s)| returns(r, s, lidar)).collect(),
+        returns: out
+            .rows
+            .iter()
+            .zip(&out.scans)
+            .flat_map(|(r, s)| returns([r.x, r.y, r.yaw], s, lidar))
+            .collect(),
         goal: out.goal,
         tolerance: out.rows[0].goal_tolerance,
         arrived: arrived.map(|r| (r.time_s, [r.x, r.y])),
@@ -525,19 +527,20 @@ fn commanded_path(rows: &[CommandRow]) -> Vec<[f64; 2]> {
     out
 }
 
-/// The valid returns of `scan` taken at `row`'s pose by a sensor mounted as `lidar` says, in
-/// the odometry frame.
+/// The valid returns of `scan` taken at `pose` (x, y, yaw in the odometry frame) by a sensor
+/// mounted as `lidar` says, in the odometry frame.
 fn returns<'a>(
-    row: &'a CommandRow,
+    pose: [f64; 3],
     scan: &'a ros::LaserScan,
     lidar: &'a SensorSetup,
 ) -> impl Iterator<Item = [f64; 2]> + 'a {
-    let (c, s) = (row.yaw.cos(), row.yaw.sin());
-    let sensor = [row.x + c * lidar.x - s * lidar.y, row.y + s * lidar.x + c * lidar.y];
+    let [x, y, yaw] = pose;
+    let (c, s) = (yaw.cos(), yaw.sin());
+    let sensor = [x + c * lidar.x - s * lidar.y, y + s * lidar.x + c * lidar.y];
     let (lo, hi) = (f64::from(scan.range_min), f64::from(scan.range_max));
     scan.ranges.iter().enumerate().filter_map(move |(j, &r)| {
         let r = f64::from(r);
-        let a = row.yaw
+        let a = yaw
             + lidar.yaw
             + f64::from(scan.angle_min)
             + j as f64 * f64::from(scan.angle_increment);
