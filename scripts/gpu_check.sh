@@ -8,9 +8,10 @@
 #      nvidia-smi, into target/cuda/ (from scratch: a few minutes on 16 cores, counted in the
 #      budget below);
 #   3. `dvnav bench learner --device cuda --json` at batch 256 and 128 in fp32 and at 256 in
-#      bf16, each cell alternated BENCH_ROUNDS times with the same update in PyTorch on the
-#      same GPU (scripts/bench_torch.py --device cuda; autocast for bf16) where python3 has a
-#      CUDA torch;
+#      bf16 (BENCH_CELLS), each cell alternated BENCH_ROUNDS times: the update op by op, the
+#      update replayed from its CUDA graph (`--cuda-graph`; checked once against op by op,
+#      `--check-cuda-graph`), and the same update in PyTorch on the same GPU
+#      (scripts/bench_torch.py --device cuda; autocast for bf16) where python3 has a CUDA torch;
 #   4. `dvnav train --device cuda --stop-when-skilled` for at most TRAIN_SECONDS (300 s), fewer
 #      when the build ate into the budget;
 #   5. the figures in $OUT (default runs/gpu-check): summary.json (the headline numbers),
@@ -19,6 +20,7 @@
 #
 # The whole script stays inside GPU_CHECK_BUDGET_S (510 s) so that it fits one 9-minute call.
 # Env: OUT, DVNAV_CUDA_BIN, TRAIN_SECONDS (300), BENCH_UPDATES (500), BENCH_ROUNDS (2),
+# BENCH_CELLS ("256:fp32 128:fp32 256:bf16"),
 # ACTORS (16 cores: 6),
 # GPU_CHECK_RUN (the training run's directory, default runs/gpu-check/train),
 # GPU_CHECK_BUDGET_S (510).
@@ -113,13 +115,23 @@ else
     say "no CUDA PyTorch in python3: dvnav's figures only"
 fi
 for round in $(seq "$rounds"); do
-    for cell in 256:fp32 128:fp32 256:bf16; do
+    for cell in ${BENCH_CELLS:-256:fp32 128:fp32 256:bf16}; do
         batch=${cell%:*} precision=${cell#*:}
-        say "round $round: bench learner --device cuda --batch $batch --precision $precision"
-        "$bin" bench learner --device cuda --batch "$batch" --precision "$precision" --updates "$updates" --json \
-            2>>"$sys" | python3 -c 'import json,sys; r=json.load(sys.stdin); r["who"]="dvnav"; print(json.dumps(r))' \
-            >>"$out/bench.jsonl" || die "bench learner --batch $batch --precision $precision failed: $(tail -n 5 "$sys")"
-        tail -n 1 "$out/bench.jsonl" >&2
+        # dvnav op by op (the default), then replaying its update captured as a CUDA graph
+        # (who = dvnav-graph; the first round also checks it against op by op).
+        for who in dvnav dvnav-graph; do
+            graph=
+            if [ "$who" = dvnav-graph ]; then
+                graph=--cuda-graph
+                [ "$round" = 1 ] && graph="--cuda-graph --check-cuda-graph"
+            fi
+            say "round $round: bench learner --device cuda --batch $batch --precision $precision $graph"
+            "$bin" bench learner --device cuda --batch "$batch" --precision "$precision" --updates "$updates" \
+                $graph --json 2>>"$sys" \
+                | WHO=$who python3 -c 'import json,os,sys; r=json.load(sys.stdin); r["who"]=os.environ["WHO"]; print(json.dumps(r))' \
+                >>"$out/bench.jsonl" || die "bench learner --batch $batch --precision $precision $graph failed: $(tail -n 5 "$sys")"
+            tail -n 1 "$out/bench.jsonl" >&2
+        done
         if [ "$torch_ok" = yes ]; then
             if python3 scripts/bench_torch.py --device cuda --batch "$batch" --precision "$precision" \
                 --updates "$updates" --warmup 20 2>>"$sys" \
@@ -177,7 +189,7 @@ except (OSError, ValueError):
     pass
 bench = {}
 for r in rows:
-    rate = r.get("sac_updates_per_s") if r.get("who") == "dvnav" else r.get("torch_sac_updates_per_s")
+    rate = r.get("torch_sac_updates_per_s") if r.get("who") == "torch" else r.get("sac_updates_per_s")
     cell = bench.setdefault(f'{r["batch"]}/{r.get("precision", "fp32")}', {})
     cell.setdefault(r["who"], []).append(rate)
 for cell in bench.values():
@@ -185,6 +197,14 @@ for cell in bench.values():
         cell[who + "_median"] = statistics.median(cell[who])
     if "dvnav_median" in cell and "torch_median" in cell:
         cell["ratio_vs_torch"] = cell["dvnav_median"] / cell["torch_median"]
+    if "dvnav_median" in cell and "dvnav-graph_median" in cell:
+        cell["ratio_graph_vs_eager"] = cell["dvnav-graph_median"] / cell["dvnav_median"]
+for r in rows:
+    if r.get("who") == "dvnav-graph":
+        cell = bench[f'{r["batch"]}/{r.get("precision", "fp32")}']
+        cell["cuda_graph"] = r.get("cuda_graph")
+        if r.get("cuda_graph_check"):
+            cell["cuda_graph_check"] = r["cuda_graph_check"]
 inference = {str(r["batch"]): r.get("inference_ms_batch1") for r in rows if r.get("who") == "dvnav"}
 run = load("run_summary.json") or {}
 def time_at_steps(steps):

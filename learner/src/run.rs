@@ -97,7 +97,8 @@ pub async fn run(
     tracing::info!(device = %crate::device::name(&device), "learner device");
     let nets = SacNetworks::new(&cfg, cfg.run.seed, &device)?;
     let mut learner = SacLearner::new(nets, cfg.sac.clone(), device, cfg.run.seed ^ 0x0005_ac00)?
-        .with_threads(cfg.learner.threads)?;
+        .with_threads(cfg.learner.threads)?
+        .with_cuda_graphs(cfg.learner.cuda_graph);
     tracing::info!(threads = learner.threads(), "learner threads");
     let mut sample_rng = trainer::sample_rng(cfg.run.seed);
     let state = Arc::new(

@@ -95,6 +95,15 @@ enum BenchWhat {
         /// PyTorch with --torch runs fp32 and bf16 autocast whatever this says.
         #[arg(long)]
         precision: Option<dvnav_config::Precision>,
+        /// On a CUDA device, capture the update once as a CUDA graph and replay it instead of
+        /// launching its kernels one by one (`learner.cuda_graph`).
+        #[arg(long)]
+        cuda_graph: bool,
+        /// On a CUDA device, also run 8 updates both ways (replayed graphs and op by op) from
+        /// the same networks, batches and noise, and report how far apart the two learners end
+        /// (`cuda_graph_check` in the JSON).
+        #[arg(long)]
+        check_cuda_graph: bool,
         /// Print one JSON object.
         #[arg(long)]
         json: bool,
@@ -329,12 +338,15 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
             from_checkpoint,
             keep_denormals,
             precision,
+            cuda_graph,
+            check_cuda_graph,
             json,
         } => {
             let mut cfg = super::load_config(config.as_ref())?;
             if let Some(p) = precision {
                 cfg.learner.precision = p;
             }
+            cfg.learner.cuda_graph |= cuda_graph;
             let threads = match threads.unwrap_or(cfg.learner.threads) {
                 0 => std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
                 n => n,
@@ -349,6 +361,21 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
                 checkpoint: from_checkpoint,
                 flush_denormals: !keep_denormals,
                 measure_peak: true,
+            };
+            let graph_check = if check_cuda_graph {
+                let c = dvnav_learner::bench::cuda_graph_check(&cfg, batch, 8, &dev)?;
+                if !json {
+                    println!(
+                        "CUDA graph against op by op after {} updates: largest difference {:.3e} (largest value {:.3e}){}",
+                        c.updates,
+                        c.max_abs_diff,
+                        c.max_abs_value,
+                        if c.replayed { "" } else { "; no graph was replayed" }
+                    );
+                }
+                Some(c)
+            } else {
+                None
             };
             let mut r = dvnav_learner::bench::sac_updates(&cfg, &run, &dev)?;
             let side = if torch {
@@ -366,6 +393,9 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
                 v["speed_ratio_vs_torch"] = serde_json::json!(ratio(side.torch_sac_updates_per_s));
                 v["speed_ratio_vs_torch_bf16"] =
                     serde_json::json!(ratio(side.torch_bf16_sac_updates_per_s));
+                if let Some(c) = graph_check {
+                    v["cuda_graph_check"] = serde_json::to_value(c)?;
+                }
                 println!("{v}");
             } else {
                 if let Some(t) = side.torch_sac_updates_per_s {

@@ -246,6 +246,12 @@ pub struct LearnerConfig {
     /// with fp32 sums (master weights, Adam moments and losses stay fp32). Actors always act
     /// in fp32.
     pub precision: Precision,
+    /// On a CUDA device (`--device cuda`), capture the update once as a CUDA graph and
+    /// replay it, instead of launching its kernels one by one. Off by default until measured
+    /// on a GPU (docs/results.md, "CUDA graphs"); a capture the driver refuses falls back to
+    /// op by op by itself.
+    #[serde(skip_serializing_if = "is_false")]
+    pub cuda_graph: bool,
     /// Every this many updates, evaluate the deterministic policy on the evaluation route of
     /// every curriculum room plus `eval_episodes` random episodes per room, and append the
     /// results to `eval.csv` in the run directory (design §4). 0: no evaluation.
@@ -282,6 +288,7 @@ impl Default for LearnerConfig {
             transitions_in_flight: 128,
             threads: 1,
             precision: Precision::Fp32,
+            cuda_graph: false,
             eval_every_updates: 2_000,
             eval_episodes: 10,
             eval_gate: false,

@@ -53,6 +53,9 @@ pub struct LearnerBench {
     pub inference_ms_batch1: f64,
     /// Policy inference latency at batch 64 (ms, mean).
     pub inference_ms_batch64: f64,
+    /// Whether the timed updates were replayed from a captured CUDA graph (CUDA with
+    /// `learner.cuda_graph` / `--cuda-graph` only).
+    pub cuda_graph: bool,
 }
 
 impl LearnerBench {
@@ -104,7 +107,12 @@ pub struct UpdateBench {
 
 /// Times `run.updates` SAC updates after `run.warmup` untimed ones.
 pub fn sac_updates(cfg: &Config, run: &UpdateBench, dev: &Device) -> anyhow::Result<LearnerBench> {
-    let (batch, threads, warmup, updates) = (run.batch, run.threads, run.warmup, run.updates);
+    let (batch, threads, mut warmup, updates) = (run.batch, run.threads, run.warmup, run.updates);
+    if dev.is_cuda() && cfg.learner.cuda_graph {
+        // Each kind of update (critics only, critics and policy) runs once op by op and is
+        // then captured as a CUDA graph: neither belongs in the timed updates.
+        warmup = warmup.max(2 * cfg.sac.policy_delay as usize + 2);
+    }
     let dev = dev.clone();
     if run.flush_denormals {
         crate::denormals::flush_denormals_to_zero();
@@ -113,8 +121,9 @@ pub fn sac_updates(cfg: &Config, run: &UpdateBench, dev: &Device) -> anyhow::Res
     let replay = random_replay(cfg, 4 * batch, &mut rng);
     let returns = Returns::for_config(&cfg.sac);
     let nets = SacNetworks::new(cfg, 0, &dev)?;
-    let mut learner =
-        SacLearner::new(nets, cfg.sac.clone(), dev.clone(), 0)?.with_threads(threads)?;
+    let mut learner = SacLearner::new(nets, cfg.sac.clone(), dev.clone(), 0)?
+        .with_threads(threads)?
+        .with_cuda_graphs(cfg.learner.cuda_graph);
     if let Some(dir) = &run.checkpoint {
         crate::checkpoint::Checkpoint::latest(dir)?.restore_learner(&mut learner)?;
     }
@@ -185,7 +194,65 @@ pub fn sac_updates(cfg: &Config, run: &UpdateBench, dev: &Device) -> anyhow::Res
         bf16_kernel: dvnav_nav::bf16::Kernel::detect().name().to_string(),
         inference_ms_batch1: latency(1)?,
         inference_ms_batch64: latency(64)?,
+        cuda_graph: learner.replays_cuda_graphs(),
     })
+}
+
+/// How far apart two learners end after the same `updates` updates from the same networks,
+/// batches and noise, one replaying captured CUDA graphs and one launching each operation:
+/// the largest absolute difference over every weight, target, moment and log α, and the
+/// largest of the last metrics. The same arithmetic in another order of launches gives the
+/// same numbers up to float rounding (cuBLAS may pick other kernels for the same product).
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct GraphCheck {
+    /// Updates run on each side (the first of each kind run eagerly, the second captured).
+    pub updates: usize,
+    /// Largest |graph − eager| over all state tensors.
+    pub max_abs_diff: f64,
+    /// Largest |value| over the same tensors, for scale.
+    pub max_abs_value: f64,
+    /// Whether the graph side really replayed graphs.
+    pub replayed: bool,
+}
+
+/// [`GraphCheck`] at `batch` on `dev` (a CUDA device; on the CPU both sides are eager).
+pub fn cuda_graph_check(
+    cfg: &Config,
+    batch: usize,
+    updates: usize,
+    dev: &Device,
+) -> anyhow::Result<GraphCheck> {
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+    let replay = random_replay(cfg, 4 * batch, &mut rng);
+    let returns = Returns::for_config(&cfg.sac);
+    let mut batches = Vec::with_capacity(updates);
+    for _ in 0..updates {
+        let mut b = Batch::default();
+        replay.sample_into(batch, returns, &mut rng, &mut b);
+        batches.push(b);
+    }
+    let run = |graphs: bool| -> anyhow::Result<(Vec<(String, Tensor)>, bool)> {
+        let nets = SacNetworks::new(cfg, 0, dev)?;
+        let mut learner =
+            SacLearner::new(nets, cfg.sac.clone(), dev.clone(), 0)?.with_cuda_graphs(graphs);
+        for b in &batches {
+            learner.update(b)?;
+        }
+        Ok((learner.state_tensors()?, learner.replays_cuda_graphs()))
+    };
+    let (graph, replayed) = run(true)?;
+    let (eager, _) = run(false)?;
+    let (mut max_abs_diff, mut max_abs_value) = (0f64, 0f64);
+    for ((name, a), (other, b)) in graph.iter().zip(&eager) {
+        anyhow::ensure!(name == other, "state tensors in another order: {name} / {other}");
+        let a = a.flatten_all()?.to_dtype(candle_core::DType::F64)?.to_vec1::<f64>()?;
+        let b = b.flatten_all()?.to_dtype(candle_core::DType::F64)?.to_vec1::<f64>()?;
+        for (x, y) in a.iter().zip(&b) {
+            max_abs_diff = max_abs_diff.max((x - y).abs());
+            max_abs_value = max_abs_value.max(y.abs());
+        }
+    }
+    Ok(GraphCheck { updates, max_abs_diff, max_abs_value, replayed })
 }
 
 /// Figures of `dvnav bench replay`.

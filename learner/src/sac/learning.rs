@@ -15,16 +15,40 @@
 //! `d` is *termination* (success or collision) only: a timeout is a truncation and still
 //! bootstraps.
 
+#[cfg(feature = "cuda")]
+mod captured;
+
 use super::average::{PolicyAverage, polyak};
 use super::networks::{GaussianPolicy, Owned, QFunction, SacNetworks};
 use super::optim::Adam;
 use super::shards::{self, Workers};
 use crate::replay::Batch;
+use candle_core::backprop::GradStore;
 use candle_core::{Device, Result, Tensor, Var};
 use dvnav_config::SacConfig;
 use dvnav_nav::nets::{Actor, Critic};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
+
+/// α as the losses take it: a number read from the device, or exp(log α) left on the device as
+/// a one-element tensor (what a captured CUDA update needs: a number would be baked into its
+/// kernels' arguments at capture).
+pub trait Temperature: Sync {
+    /// α · `x`.
+    fn times(&self, x: &Tensor) -> Result<Tensor>;
+}
+
+impl Temperature for f64 {
+    fn times(&self, x: &Tensor) -> Result<Tensor> {
+        x * *self
+    }
+}
+
+impl Temperature for Tensor {
+    fn times(&self, x: &Tensor) -> Result<Tensor> {
+        x.broadcast_mul(self)
+    }
+}
 
 /// Q̂(s,a) = r + γ(1 − d)(min(Q̂1, Q̂2)(s′, ã′) − α log π(ã′|s′)), detached from the graph.
 /// `discount` is γ per row: γ^k for a k-step return in `reward` (the replay's
@@ -36,9 +60,9 @@ pub fn soft_bellman_target(
     next_q1: &Tensor,
     next_q2: &Tensor,
     next_log_prob: &Tensor,
-    alpha: f64,
+    alpha: &impl Temperature,
 ) -> Result<Tensor> {
-    let soft_v = (next_q1.minimum(next_q2)? - (next_log_prob * alpha)?)?;
+    let soft_v = (next_q1.minimum(next_q2)? - alpha.times(next_log_prob)?)?;
     let not_done = (terminated.neg()? + 1.0)?;
     (reward + ((not_done * soft_v)? * discount)?)?.detach().contiguous()
 }
@@ -55,11 +79,11 @@ pub fn actor_loss(
     log_prob: &Tensor,
     q1: &Tensor,
     q2: &Tensor,
-    alpha: f64,
+    alpha: &impl Temperature,
     l2_coef: f64,
     policy_weights: &[Tensor],
 ) -> Result<Tensor> {
-    let sac = ((log_prob * alpha)? - q1.minimum(q2)?)?.mean_all()?;
+    let sac = (alpha.times(log_prob)? - q1.minimum(q2)?)?.mean_all()?;
     match l2_penalty(policy_weights, l2_coef)? {
         Some(l2) => sac + l2,
         None => Ok(sac),
@@ -174,6 +198,9 @@ pub struct SacLearner<P = Actor, Q = Critic> {
     noise: rand_pcg::Pcg64,
     /// θ̄, when `sac.policy_average_tau` > 0.
     average: Option<PolicyAverage>,
+    /// The update captured as CUDA graphs, on a CUDA device ([`captured`]).
+    #[cfg(feature = "cuda")]
+    graphs: captured::CudaGraphs,
 }
 
 impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
@@ -214,6 +241,8 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
             workers: Workers::new(1)?,
             noise: rand_pcg::Pcg64::seed_from_u64(seed),
             average,
+            #[cfg(feature = "cuda")]
+            graphs: captured::CudaGraphs::new(false),
         })
     }
 
@@ -223,6 +252,27 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
     pub fn with_threads(mut self, threads: usize) -> Result<Self> {
         self.workers = Workers::new(threads)?;
         Ok(self)
+    }
+
+    /// On a CUDA device, replay each update from a CUDA graph captured at the first updates
+    /// (`learner.cuda_graph`; off by default) instead of launching its kernels one by one.
+    /// Same arithmetic; the losses reach [`Self::last_metrics`] every 16th update. Without the
+    /// `cuda` feature, and on the CPU, it changes nothing.
+    #[allow(unused_mut, unused_variables)]
+    pub fn with_cuda_graphs(mut self, on: bool) -> Self {
+        #[cfg(feature = "cuda")]
+        {
+            self.graphs.enabled = on;
+        }
+        self
+    }
+
+    /// Whether updates are replayed from a captured CUDA graph now.
+    pub fn replays_cuda_graphs(&self) -> bool {
+        #[cfg(feature = "cuda")]
+        return self.graphs.replaying();
+        #[cfg(not(feature = "cuda"))]
+        false
     }
 
     /// Worker threads an update is spread over.
@@ -257,13 +307,73 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
         batch: &Batch,
         noise: &UpdateNoise,
     ) -> Result<UpdateMetrics> {
+        #[cfg(feature = "cuda")]
+        if let Some(metrics) = self.captured_update(batch, noise)? {
+            return Ok(metrics);
+        }
         let shards =
             shards::split(batch, noise.view(), self.action_dim, self.shard_count(), &self.device)?;
-        let alpha = self.nets.alpha();
+        let policy = self.policy_due();
+        let losses = self.step_networks(&shards, &self.nets.alpha(), policy, None)?;
+        self.last.critic_loss = sum_of(&losses.critic)?;
+        self.last.q_mean = sum_of(&losses.q_mean)?;
+        if let Some((actor, entropy)) = &losses.policy {
+            self.last.actor_loss = sum_of(actor)?;
+            self.last.entropy = scalar(entropy)?;
+        }
+        self.updates += 1;
+        self.last.alpha = self.nets.alpha();
+        Ok(self.last)
+    }
+
+    /// Whether the next update steps the policy and α too (every `policy_delay`-th).
+    fn policy_due(&self) -> bool {
+        self.updates.is_multiple_of(self.cfg.policy_delay)
+    }
+
+    /// The Adam bias corrections of the next update, as [`Self::step_networks`] takes them
+    /// on the device: the critics', the policy's and α's 1/(1 − β₁ᵗ), 1/(1 − β₂ᵗ).
+    fn next_corrections(&self) -> [f32; 6] {
+        let mut c = [0f32; 6];
+        c[..2].copy_from_slice(&self.critic_opt.next_corrections());
+        c[2..4].copy_from_slice(&self.actor_opt.next_corrections());
+        c[4..].copy_from_slice(&self.alpha_opt.next_corrections());
+        c
+    }
+
+    /// Counts an update that [`Self::step_networks`] ran with device-side corrections, which
+    /// counts nothing itself.
+    fn count_replayed(&mut self, policy: bool) {
+        self.critic_opt.count_step();
+        if policy {
+            self.actor_opt.count_step();
+            if self.cfg.autotune_alpha {
+                self.alpha_opt.count_step();
+            }
+        }
+        self.updates += 1;
+    }
+
+    /// The update's arithmetic on `shards`: both critics, then (when `policy`) the policy, α
+    /// and θ̄, then the targets. Counts nothing on the host and reads nothing back, so that
+    /// it can be captured as a CUDA graph: `corrections` (the critics', policy's and α's Adam
+    /// bias corrections, 6 values on the device) replace the optimizers' own step counts when
+    /// given. Returns the losses as tensors.
+    fn step_networks(
+        &mut self,
+        shards: &[shards::Shard],
+        alpha: &impl Temperature,
+        policy: bool,
+        corrections: Option<&Tensor>,
+    ) -> Result<StepLosses> {
         let nets = &self.nets;
+        let adam = |opt: &mut Adam, grads: &GradStore, k: usize| match corrections {
+            Some(c) => opt.step_corrected(grads, &c.narrow(0, 2 * k, 2)?),
+            None => opt.step(grads),
+        };
 
         // Critics: each shard's loss is its share of L(φ1) + L(φ2) over the batch.
-        let parts = self.workers.map(&shards, |s| {
+        let parts = self.workers.map(shards, |s| {
             let next = nets.actor.net.sample_with_noise(&s.next_obs, &s.eps_next)?;
             let next_action = next.action.detach();
             let target = soft_bellman_target(
@@ -278,19 +388,20 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
             let q1 = nets.critic1.net.q(&s.obs, &s.actions)?;
             let q2 = nets.critic2.net.q(&s.obs, &s.actions)?;
             let loss = share_of(critic_loss(&q1, &q2, &target)?, s.share)?;
-            Ok((loss.backward()?, scalar(&loss)?, s.share * scalar(&q1.mean_all()?)?))
+            let q_mean = share_of(q1.mean_all()?, s.share)?;
+            Ok((loss.backward()?, loss.detach(), q_mean.detach()))
         })?;
-        let (stores, losses, q_means) = unzip3(parts);
-        self.critic_opt.step(&shards::sum_grads(stores, self.critic_opt.vars())?)?;
-        self.last.critic_loss = losses.iter().sum();
-        self.last.q_mean = q_means.iter().sum();
+        let (stores, critic, q_mean) = unzip3(parts);
+        let grads = shards::sum_grads(stores, self.critic_opt.vars())?;
+        adam(&mut self.critic_opt, &grads, 0)?;
+        let mut losses = StepLosses { critic, q_mean, policy: None };
 
         // Policy and temperature, delayed.
-        if self.updates.is_multiple_of(self.cfg.policy_delay) {
+        if policy {
             let weights: Vec<Tensor> =
                 self.policy_weights.iter().map(|v| v.as_tensor().clone()).collect();
             let (nets, cfg) = (&self.nets, &self.cfg);
-            let parts = self.workers.map(&shards, |s| {
+            let parts = self.workers.map(shards, |s| {
                 let pi = nets.actor.net.sample_with_noise(&s.obs, &s.eps_pi)?;
                 let q1_pi = nets.critic1.net.q_for_policy(&s.obs, &pi.action)?;
                 let q2_pi = nets.critic2.net.q_for_policy(&s.obs, &pi.action)?;
@@ -319,31 +430,29 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
                 }
                 // The backward pass also reaches the critics' heads through Q(s, ã); only the
                 // policy's optimizer steps, so their gradients are dropped.
-                Ok((loss.backward()?, scalar(&loss)?, pi.log_prob.detach()))
+                Ok((loss.backward()?, loss.detach(), pi.log_prob.detach()))
             })?;
-            let (stores, losses, log_probs) = unzip3(parts);
-            self.actor_opt.step(&shards::sum_grads(stores, self.actor_opt.vars())?)?;
+            let (stores, actor, log_probs) = unzip3(parts);
+            let grads = shards::sum_grads(stores, self.actor_opt.vars())?;
+            adam(&mut self.actor_opt, &grads, 1)?;
             let log_prob = Tensor::cat(&log_probs, 0)?;
-            self.last.actor_loss = losses.iter().sum();
-            self.last.entropy = -scalar(&log_prob.mean_all()?)?;
             if self.cfg.autotune_alpha {
                 let loss_a = temperature_loss(
                     self.nets.log_alpha.as_tensor(),
                     &log_prob,
                     self.target_entropy,
                 )?;
-                self.alpha_opt.step(&loss_a.backward()?)?;
+                adam(&mut self.alpha_opt, &loss_a.backward()?, 2)?;
             }
             if let Some(avg) = &mut self.average {
                 avg.update(&self.nets.actor.named_vars())?;
             }
+            losses.policy = Some((actor, log_prob.mean_all()?.neg()?));
         }
 
         soft_update(&self.nets.target1, &self.nets.critic1, self.cfg.tau)?;
         soft_update(&self.nets.target2, &self.nets.critic2, self.cfg.tau)?;
-        self.updates += 1;
-        self.last.alpha = self.nets.alpha();
-        Ok(self.last)
+        Ok(losses)
     }
 
     /// Shards an update is cut into: one per worker thread on a CPU, one on a GPU (a GPU
@@ -484,6 +593,20 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
 /// Prefix of θ̄'s tensors in a checkpoint's state.
 const AVERAGE_PREFIX: &str = "actor_average";
 
+/// What [`SacLearner::step_networks`] leaves on the device: each shard's share of the critics'
+/// loss and of mean Q1, and with a policy step each shard's share of the policy's loss and the
+/// entropy estimate −mean log π.
+struct StepLosses {
+    critic: Vec<Tensor>,
+    q_mean: Vec<Tensor>,
+    policy: Option<(Vec<Tensor>, Tensor)>,
+}
+
+/// The sum of the shards' parts, as a number.
+fn sum_of(parts: &[Tensor]) -> Result<f64> {
+    parts.iter().map(scalar).sum()
+}
+
 /// A shard's part of a batch mean: the shard's own mean times its share of the rows.
 fn share_of(mean: Tensor, share: f64) -> Result<Tensor> {
     if share == 1.0 { Ok(mean) } else { mean * share }
@@ -569,6 +692,46 @@ mod tests {
         assert_ne!(before, after, "the policy was updated");
         assert_eq!(after, b.policy_safetensors().unwrap());
         assert_ne!(after, c.policy_safetensors().unwrap(), "other noise, other result");
+    }
+
+    #[test]
+    fn the_replayable_step_is_the_eager_step() {
+        // What a captured CUDA update runs (α and Adam's bias corrections as tensors on the
+        // device, nothing counted or read back on the host; `captured`), run op by op here on
+        // the CPU: the same updates as the eager path, policy steps included.
+        let cfg = dvnav_config::Config::default();
+        let batch = varied_batch(&cfg, 32);
+        let (mut eager, mut replay) = (learner(5), learner(5));
+        for _ in 0..5 {
+            let noise = UpdateNoise {
+                next: replay.standard_normal(batch.size),
+                current: replay.standard_normal(batch.size),
+            };
+            eager.update_with_noise(&batch, &noise).unwrap();
+            let shards =
+                shards::split(&batch, noise.view(), replay.action_dim, 1, &Device::Cpu).unwrap();
+            let corrections = Tensor::new(&replay.next_corrections()[..], &Device::Cpu).unwrap();
+            let alpha = replay.nets.log_alpha.as_tensor().exp().unwrap();
+            let policy = replay.policy_due();
+            replay.step_networks(&shards, &alpha, policy, Some(&corrections)).unwrap();
+            replay.count_replayed(policy);
+        }
+        assert_eq!(replay.updates(), eager.updates());
+        assert_eq!(replay.optimizer_steps(), eager.optimizer_steps());
+        let (a, b) = (eager.state_tensors().unwrap(), replay.state_tensors().unwrap());
+        let mut worst = 0f32;
+        for ((name, x), (_, y)) in a.iter().zip(&b) {
+            let x = x.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            let y = y.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            for (x, y) in x.iter().zip(&y) {
+                assert!((x - y).abs() <= 1e-6 * (1.0 + x.abs()), "{name}: {x} vs {y}");
+                worst = worst.max((x - y).abs());
+            }
+        }
+        let fresh = learner(5).state_tensors().unwrap();
+        let moved =
+            |t: &[(String, Tensor)]| t[0].1.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        assert_ne!(moved(&b), moved(&fresh), "the replayable step moved the policy");
     }
 
     #[test]
@@ -806,7 +969,7 @@ mod tests {
             &t(&[2.0, 2.0]),
             &t(&[3.0, 3.0]),
             &t(&[-1.0, -1.0]),
-            0.1,
+            &0.1,
         )
         .unwrap()
         .to_vec1::<f32>()
@@ -825,7 +988,7 @@ mod tests {
             &t(&[2.0, 2.0, 2.0]),
             &t(&[3.0, 3.0, 3.0]),
             &t(&[-1.0, -1.0, -1.0]),
-            0.1,
+            &0.1,
         )
         .unwrap()
         .to_vec1::<f32>()
@@ -846,7 +1009,7 @@ mod tests {
         assert!((l - 1.5).abs() < 1e-6);
         // mean(0.5·[−1, −2] − [0, 2]) = mean([−0.5, −3]) = −1.75; L2: 1e-2·(1 + 4) = 0.05
         let w = [t(&[1.0, 2.0])];
-        let a = actor_loss(&t(&[-1.0, -2.0]), &q1, &q2, 0.5, 1e-2, &w)
+        let a = actor_loss(&t(&[-1.0, -2.0]), &q1, &q2, &0.5, 1e-2, &w)
             .unwrap()
             .to_scalar::<f32>()
             .unwrap();

@@ -51,6 +51,32 @@ impl Adam {
         let t = self.step as i32;
         let bias1 = 1.0 - self.beta1.powi(t);
         let bias2 = 1.0 - self.beta2.powi(t);
+        self.apply(grads, Corrections::Numbers { bias1, bias2 })
+    }
+
+    /// One Adam step whose bias corrections 1/(1 − β₁ᵗ), 1/(1 − β₂ᵗ) are read from `inv_bias`,
+    /// a 2-element f32 tensor on the variables' device, rather than computed from the step
+    /// count: a captured update (CUDA graph) replays the same kernels with the same arguments
+    /// every time, so what changes per step must live in device memory. The caller writes
+    /// [`Adam::next_corrections`] there before each replay and calls [`Adam::count_step`] after.
+    /// Does not count the step itself (a capture runs this without stepping anything).
+    pub fn step_corrected(&mut self, grads: &GradStore, inv_bias: &Tensor) -> Result<()> {
+        let (inv1, inv2) = (inv_bias.get(0)?, inv_bias.get(1)?);
+        self.apply(grads, Corrections::Tensors { inv1: &inv1, inv2: &inv2 })
+    }
+
+    /// 1/(1 − β₁ᵗ) and 1/(1 − β₂ᵗ) of the next step, as f32 (what [`Adam::step`] uses).
+    pub fn next_corrections(&self) -> [f32; 2] {
+        let t = (self.step + 1) as i32;
+        [(1.0 / (1.0 - self.beta1.powi(t))) as f32, (1.0 / (1.0 - self.beta2.powi(t))) as f32]
+    }
+
+    /// Counts a step done by a replay of [`Adam::step_corrected`].
+    pub fn count_step(&mut self) {
+        self.step += 1;
+    }
+
+    fn apply(&mut self, grads: &GradStore, corrections: Corrections) -> Result<()> {
         for (i, (_, var)) in self.vars.iter().enumerate() {
             let Some(g) = grads.get(var.as_tensor()) else { continue };
             // candle detaches inner gradients but not those of the leaves: a variable's gradient
@@ -58,7 +84,10 @@ impl Adam {
             // update's graph to the next (without this the learner grew by ~7 MB per update
             // until the OOM killer stopped it; see tests/issue_2_adam_memory.rs).
             let g = g.detach();
-            if self.fuse && fusable(&[var.as_tensor(), &g, &self.first[i], &self.second[i]]) {
+            if let Corrections::Numbers { bias1, bias2 } = corrections
+                && self.fuse
+                && fusable(&[var.as_tensor(), &g, &self.first[i], &self.second[i]])
+            {
                 let ema = |beta: f64, square| Ema {
                     beta: beta as f32,
                     rest: (1.0 - beta) as f32,
@@ -77,11 +106,18 @@ impl Adam {
             }
             let m = ((&self.first[i] * self.beta1)? + (&g * (1.0 - self.beta1))?)?.detach();
             let v = ((&self.second[i] * self.beta2)? + (g.sqr()? * (1.0 - self.beta2))?)?.detach();
-            let denom = ((&v / bias2)?.sqrt()? + self.eps)?;
-            let update = ((&m / bias1)? / denom)?;
+            let (m_hat, v_hat) = match corrections {
+                Corrections::Numbers { bias1, bias2 } => ((&m / bias1)?, (&v / bias2)?),
+                Corrections::Tensors { inv1, inv2 } => {
+                    (m.broadcast_mul(inv1)?, v.broadcast_mul(inv2)?)
+                }
+            };
+            let update = (m_hat / (v_hat.sqrt()? + self.eps)?)?;
             var.set(&(var.as_tensor() - (update * self.lr)?)?)?;
-            self.first[i] = m;
-            self.second[i] = v;
+            // Written into the moments' own storage: a captured update must leave every
+            // tensor it outlives where it found it.
+            self.first[i].slice_set(&m, 0, 0)?;
+            self.second[i].slice_set(&v, 0, 0)?;
         }
         Ok(())
     }
@@ -123,14 +159,24 @@ impl Adam {
                 if t.dims() != var.dims() {
                     anyhow::bail!("optimizer tensor `{key}` has the wrong shape");
                 }
-                // A copy: the moments are updated in place, and `tensors` may be another
-                // learner's state.
-                *slot = t.to_dtype(var.dtype())?.copy()?;
+                // Copied into the moments' own storage: they are updated in place, `tensors`
+                // may be another learner's state, and a captured update (CUDA graph) holds
+                // their addresses.
+                slot.slice_set(&t.to_dtype(var.dtype())?.to_device(var.device())?.copy()?, 0, 0)?;
             }
         }
         self.step = step;
         Ok(())
     }
+}
+
+/// Where a step's bias corrections come from.
+#[derive(Clone, Copy)]
+enum Corrections<'a> {
+    /// 1 − β₁ᵗ and 1 − β₂ᵗ from the step count.
+    Numbers { bias1: f64, bias2: f64 },
+    /// 1/(1 − β₁ᵗ) and 1/(1 − β₂ᵗ) as scalar tensors on the device.
+    Tensors { inv1: &'a Tensor, inv2: &'a Tensor },
 }
 
 /// Whether one Adam step can run as the fused in-place passes: f32, contiguous, on the CPU

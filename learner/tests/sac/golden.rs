@@ -187,7 +187,7 @@ fn soft_bellman_target_matches_the_reference() {
         &t(&[2.0, 3.0, -1.0, 0.7]),
         &t(&[2.5, 1.0, -2.0, 0.6]),
         &t(&[-1.5, 0.3, 2.0, -0.2]),
-        0.2,
+        &0.2,
     )
     .unwrap();
     assert_close("y", &values(&y), &TARGET_Y, TOL_FUNCTION);
@@ -212,7 +212,7 @@ fn actor_loss_and_its_gradients_match_the_reference() {
     let w1 = Var::new(&[[0.5f32, -1.0], [2.0, 0.25]], &dev()).unwrap();
     let w2 = t(&[-0.3, 0.7, 1.1]);
     let weights = [w1.as_tensor().clone(), w2];
-    let loss = actor_loss(log_prob.as_tensor(), q1.as_tensor(), &q2, 0.3, 0.01, &weights).unwrap();
+    let loss = actor_loss(log_prob.as_tensor(), q1.as_tensor(), &q2, &0.3, 0.01, &weights).unwrap();
     assert_close("actor_loss", &values(&loss), &[ACTOR_LOSS], TOL_FUNCTION);
     let grads = loss.backward().unwrap();
     let g = |v: &Var| values(grads.get(v).unwrap());
