@@ -15,7 +15,7 @@
 //! On devices other than the CPU (the `cuda` feature) the same functions fall back to
 //! composite candle ops with identical results, so a model is defined once.
 
-use candle_core::{CpuStorage, CustomOp1, CustomOp2, DType, Layout, Result, Shape, Tensor};
+use candle_core::{CpuStorage, CustomOp1, CustomOp2, DType, Device, Layout, Result, Shape, Tensor};
 
 /// `x + bias` (bias broadcast over the last dimension) through a leaky ReLU of `slope`
 /// (0: ReLU).
@@ -31,6 +31,17 @@ pub fn bias_act(x: &Tensor, bias: &Tensor, slope: f32) -> Result<Tensor> {
 /// The rows of a channels-last 1-D convolution's input, `(batch, len, channels)` →
 /// `(batch, out_len, kernel·channels)` with `out_len = (len − kernel)/stride + 1`.
 pub fn unfold(x: &Tensor, kernel: usize, stride: usize) -> Result<Tensor> {
+    unfold_at(x, kernel, stride, None)
+}
+
+/// [`unfold`] with the gather positions of devices other than the CPU made beforehand by
+/// [`unfold_index`] (made here when `None`).
+pub fn unfold_at(
+    x: &Tensor,
+    kernel: usize,
+    stride: usize,
+    index: Option<&Tensor>,
+) -> Result<Tensor> {
     let (b, len, c) = x.dims3()?;
     if len < kernel {
         candle_core::bail!("unfold: {len} positions are fewer than the kernel {kernel}");
@@ -39,11 +50,26 @@ pub fn unfold(x: &Tensor, kernel: usize, stride: usize) -> Result<Tensor> {
     if x.device().is_cpu() && x.dtype() == DType::F32 {
         x.contiguous()?.apply_op1(Unfold { kernel, stride, len, channels: c, out_len })
     } else {
-        let idx: Vec<u32> =
-            (0..out_len).flat_map(|j| (0..kernel).map(move |k| (j * stride + k) as u32)).collect();
-        let idx = Tensor::from_vec(idx, out_len * kernel, x.device())?;
+        let idx = match index {
+            Some(idx) => idx.clone(),
+            None => unfold_index(len, kernel, stride, x.device())?,
+        };
         x.index_select(&idx, 1)?.reshape((b, out_len, kernel * c))
     }
+}
+
+/// The input positions [`unfold`] gathers off the CPU, `(out_len·kernel,)` u32 on `dev`. A
+/// layer makes them once: an upload from host memory in every forward pass is what a CUDA
+/// graph capture of the update cannot contain (8.4 kB for the first convolution, above the
+/// small uploads candle caches for captures).
+pub fn unfold_index(len: usize, kernel: usize, stride: usize, dev: &Device) -> Result<Tensor> {
+    if len < kernel {
+        candle_core::bail!("unfold: {len} positions are fewer than the kernel {kernel}");
+    }
+    let out_len = (len - kernel) / stride + 1;
+    let idx: Vec<u32> =
+        (0..out_len).flat_map(|j| (0..kernel).map(move |k| (j * stride + k) as u32)).collect();
+    Tensor::from_vec(idx, out_len * kernel, dev)
 }
 
 fn f32_slice<'a>(s: &'a CpuStorage, l: &Layout, what: &str) -> Result<&'a [f32]> {

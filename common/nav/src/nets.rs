@@ -55,6 +55,8 @@ pub struct Conv1dUnfold {
     stride: usize,
     out_len: usize,
     precision: Precision,
+    /// The unfold's gather positions off the CPU ([`crate::fused::unfold_index`]).
+    index: Option<Tensor>,
 }
 
 impl Conv1dUnfold {
@@ -77,7 +79,20 @@ impl Conv1dUnfold {
         }
         let out_len = (in_len - kernel) / stride + 1;
         let precision = Precision::Fp32;
-        Ok(Self { weight, bias, in_channels, out_channels, kernel, stride, out_len, precision })
+        let index = (!vb.device().is_cpu())
+            .then(|| crate::fused::unfold_index(in_len, kernel, stride, vb.device()))
+            .transpose()?;
+        Ok(Self {
+            weight,
+            bias,
+            in_channels,
+            out_channels,
+            kernel,
+            stride,
+            out_len,
+            precision,
+            index,
+        })
     }
 
     /// Output positions.
@@ -91,7 +106,7 @@ impl Conv1dUnfold {
     /// `(batch·out_len, out_channels)`.
     fn products(&self, x: &Tensor) -> Result<Tensor> {
         let b = x.dim(0)?;
-        let cols = crate::fused::unfold(x, self.kernel, self.stride)?
+        let cols = crate::fused::unfold_at(x, self.kernel, self.stride, self.index.as_ref())?
             .reshape((b * self.out_len, self.kernel * self.in_channels))?;
         // (out, in, k) → (k, in, out) → (k·in, out): rows in the unfold's (position, channel) order.
         let w = self

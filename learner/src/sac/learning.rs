@@ -333,6 +333,7 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
 
     /// The Adam bias corrections of the next update, as [`Self::step_networks`] takes them
     /// on the device: the critics', the policy's and α's 1/(1 − β₁ᵗ), 1/(1 − β₂ᵗ).
+    #[cfg_attr(not(feature = "cuda"), allow(dead_code))] // the CPU runs it in tests only
     fn next_corrections(&self) -> [f32; 6] {
         let mut c = [0f32; 6];
         c[..2].copy_from_slice(&self.critic_opt.next_corrections());
@@ -343,6 +344,7 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
 
     /// Counts an update that [`Self::step_networks`] ran with device-side corrections, which
     /// counts nothing itself.
+    #[cfg_attr(not(feature = "cuda"), allow(dead_code))] // the CPU runs it in tests only
     fn count_replayed(&mut self, policy: bool) {
         self.critic_opt.count_step();
         if policy {

@@ -16,7 +16,10 @@
 //!
 //! Each kind runs once eagerly first, with candle's CUDA-graph cache on, so that the small
 //! host-to-device uploads of kernel parameters (shapes and strides) are made then and reused
-//! while capturing, where an upload from host memory is not allowed. A capture that fails
+//! while capturing, where an upload from host memory is not allowed (uploads above 4 kB are
+//! not cached at all: the convolutions' gather positions are made once per layer for this,
+//! `dvnav_nav::fused::unfold_index`). cuBLAS gets a workspace of its own first, so that it
+//! allocates nothing inside a capture. A capture that fails
 //! (a candle operation the driver will not capture) is logged, and the learner goes on
 //! eagerly: slower, never wrong.
 //!
@@ -26,28 +29,77 @@
 use super::{SacLearner, StepLosses, UpdateMetrics, UpdateNoise, shards};
 use crate::replay::Batch;
 use candle_core::cuda::WrapErr;
-use candle_core::cuda::cudarc::driver::{CudaGraph, sys};
+use candle_core::cuda::cudarc::cublas::{CudaBlas, sys as cublas_sys};
+use candle_core::cuda::cudarc::driver::{CudaGraph, CudaSlice, DevicePtr, sys};
 use candle_core::{DType, Device, Result, Tensor, Var};
+use std::sync::Arc;
 
 /// Updates between two reads of the losses from the device.
 pub const METRICS_EVERY: u64 = 16;
+
+/// cuBLAS's workspace while updates are captured and replayed (PyTorch's CUDA graphs set one
+/// too): with a workspace of its own, cuBLAS allocates nothing inside a capture.
+const CUBLAS_WORKSPACE_BYTES: usize = 32 << 20;
 
 /// The captured updates of one learner, and whether to use them.
 pub struct CudaGraphs {
     /// Replay captured updates on a CUDA device (`learner.cuda_graph`).
     pub enabled: bool,
     captured: Option<Captured>,
+    /// Set once, before the first capture; dropped (and cuBLAS back on its default) with the
+    /// learner.
+    workspace: Option<CublasWorkspace>,
 }
 
 impl CudaGraphs {
     /// On or off; nothing is captured before the first update on a CUDA device.
     pub fn new(enabled: bool) -> Self {
-        Self { enabled, captured: None }
+        Self { enabled, captured: None, workspace: None }
     }
 
     /// Whether updates are being replayed from a capture now.
     pub fn replaying(&self) -> bool {
         self.captured.as_ref().is_some_and(|c| c.graphs.iter().any(Option::is_some))
+    }
+}
+
+/// A device buffer given to the device's cuBLAS handle as its workspace, taken back on drop
+/// (the handle is the device's, and outlives the learner).
+struct CublasWorkspace {
+    blas: Arc<CudaBlas>,
+    _buffer: CudaSlice<u8>,
+}
+
+impl CublasWorkspace {
+    fn set(cuda: &candle_core::CudaDevice) -> Result<Self> {
+        let blas = cuda.cublas_handle();
+        let stream = cuda.cuda_stream();
+        let buffer = stream.alloc_zeros::<u8>(CUBLAS_WORKSPACE_BYTES).w()?;
+        let status = {
+            let (ptr, _sync) = buffer.device_ptr(&stream);
+            // SAFETY: the buffer lives as long as this value, whose drop takes it back from
+            // the handle before freeing it.
+            unsafe {
+                cublas_sys::cublasSetWorkspace_v2(
+                    *blas.handle(),
+                    ptr as *mut std::ffi::c_void,
+                    CUBLAS_WORKSPACE_BYTES,
+                )
+            }
+        };
+        if status != cublas_sys::cublasStatus_t::CUBLAS_STATUS_SUCCESS {
+            candle_core::bail!("cublasSetWorkspace: {status:?}");
+        }
+        Ok(Self { blas, _buffer: buffer })
+    }
+}
+
+impl Drop for CublasWorkspace {
+    fn drop(&mut self) {
+        // SAFETY: a null workspace of size 0 puts the handle back on cuBLAS's own.
+        unsafe {
+            cublas_sys::cublasSetWorkspace_v2(*self.blas.handle(), std::ptr::null_mut(), 0);
+        }
     }
 }
 
@@ -167,6 +219,11 @@ impl<P: super::GaussianPolicy, Q: super::QFunction> SacLearner<P, Q> {
         c.inputs.write(batch, noise, &self.next_corrections())?;
 
         if c.graphs[kind].is_none() {
+            if self.graphs.workspace.is_none() {
+                // Before the first update that runs with the upload cache, so that the
+                // warm-up already uses the workspace the captures will.
+                self.graphs.workspace = Some(CublasWorkspace::set(&cuda)?);
+            }
             if !c.warmed[kind] {
                 let _cache = cuda.enable_cuda_graph_htod_cache();
                 self.replayable_step(&c, policy)?;
