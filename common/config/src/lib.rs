@@ -238,9 +238,9 @@ pub struct LearnerConfig {
     pub transitions_in_flight: usize,
     /// Threads for the learner's update (0: one per core): the minibatch is cut into row
     /// shards that run side by side, candle single-threaded in each (its own pool's spin
-    /// barriers made two threads slower than one). Default 1: two make an update 1.7-1.8x
-    /// faster on an idle 2-core machine, but the tests and CI run several trainings at once
-    /// (docs/results.md, "Learner threads").
+    /// barriers made two threads slower than one). Default 2: two make an update 1.5-1.8x
+    /// faster on an idle 2-core machine, and the default run reach its skill 1.37x sooner
+    /// (docs/results.md, "Learner threads" and "Two threads by default").
     pub threads: usize,
     /// The arithmetic of the networks' matrix products in training: fp32, or bf16 operands
     /// with fp32 sums (master weights, Adam moments and losses stay fp32). Actors always act
@@ -286,7 +286,7 @@ impl Default for LearnerConfig {
             max_actor_names: 1024,
             max_steps_ahead: 2_000,
             transitions_in_flight: 128,
-            threads: 1,
+            threads: 2,
             precision: Precision::Fp32,
             cuda_graph: false,
             eval_every_updates: 2_000,
