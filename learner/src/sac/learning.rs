@@ -18,9 +18,9 @@
 #[cfg(feature = "cuda")]
 mod captured;
 
-use super::average::{PolicyAverage, polyak};
+use super::average::PolicyAverage;
 use super::networks::{GaussianPolicy, Owned, QFunction, SacNetworks};
-use super::optim::Adam;
+use super::optim::{Adam, polyak_in_place};
 use super::shards::{self, Workers};
 use crate::replay::Batch;
 use candle_core::backprop::GradStore;
@@ -136,7 +136,7 @@ pub fn temperature_loss(
 pub fn soft_update<Q>(target: &Owned<Q>, online: &Owned<Q>, tau: f64) -> Result<()> {
     for ((tn, t), (on, o)) in target.named_vars().iter().zip(online.named_vars().iter()) {
         debug_assert_eq!(tn, on);
-        t.set(&polyak(t.as_tensor(), o.as_tensor(), tau)?)?;
+        polyak_in_place(t, o.as_tensor(), tau)?;
     }
     Ok(())
 }

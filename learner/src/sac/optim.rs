@@ -170,6 +170,34 @@ impl Adam {
     }
 }
 
+/// `target ← (1 − τ)·target + τ·online` in place: one pass on the CPU (the same f32 operations
+/// as [`super::average::polyak`], bit for bit), the tensor expression written back elsewhere.
+pub fn polyak_in_place(target: &Var, online: &Tensor, tau: f64) -> Result<()> {
+    if fusable(&[target.as_tensor(), online]) {
+        let op = Polyak { keep: (1.0 - tau) as f32, take: tau as f32 };
+        return target.as_tensor().inplace_op2(online, &op);
+    }
+    target.set(&super::average::polyak(target.as_tensor(), online, tau)?)
+}
+
+/// One pass of [`polyak_in_place`].
+struct Polyak {
+    keep: f32,
+    take: f32,
+}
+
+impl InplaceOp2 for Polyak {
+    fn name(&self) -> &'static str {
+        "polyak"
+    }
+
+    fn cpu_fwd(&self, t: &mut CpuStorage, lt: &Layout, o: &CpuStorage, lo: &Layout) -> Result<()> {
+        let (t, o) = (f32s_mut(t, lt)?, f32s(o, lo)?);
+        t.iter_mut().zip(o).for_each(|(t, o)| *t = *t * self.keep + *o * self.take);
+        Ok(())
+    }
+}
+
 /// Where a step's bias corrections come from.
 #[derive(Clone, Copy)]
 enum Corrections<'a> {
@@ -311,6 +339,22 @@ mod tests {
             assert_eq!(a, b, "{name}");
         }
         assert_ne!(fused[4].1, init.flatten_all().unwrap().to_vec1::<f32>().unwrap(), "it moved");
+    }
+
+    #[test]
+    fn the_polyak_pass_is_the_tensor_expression() {
+        let dev = Device::Cpu;
+        let target = Tensor::randn(0f32, 1.0, (41, 17), &dev).unwrap();
+        let online = Tensor::randn(0f32, 1.0, (41, 17), &dev).unwrap();
+        let want = super::super::average::polyak(&target, &online, 0.005).unwrap();
+        let var = Var::from_tensor(&target).unwrap();
+        polyak_in_place(&var, &online, 0.005).unwrap();
+        let (got, want) = (var.as_tensor().flatten_all().unwrap(), want.flatten_all().unwrap());
+        assert_eq!(got.to_vec1::<f32>().unwrap(), want.to_vec1::<f32>().unwrap());
+        assert_ne!(
+            got.to_vec1::<f32>().unwrap(),
+            target.flatten_all().unwrap().to_vec1::<f32>().unwrap()
+        );
     }
 
     #[test]
