@@ -12,8 +12,11 @@
 #      update replayed from its CUDA graph (`--cuda-graph`; checked once against op by op,
 #      `--check-cuda-graph`), and the same update in PyTorch on the same GPU
 #      (scripts/bench_torch.py --device cuda; autocast for bf16) where python3 has a CUDA torch;
-#   4. `dvnav train --device cuda --stop-when-skilled` for at most TRAIN_SECONDS (300 s), fewer
-#      when the build ate into the budget;
+#   4. `dvnav train --device cuda --config TRAIN_CONFIG --stop-when-skilled` for at most
+#      TRAIN_SECONDS (300 s), fewer when the build ate into the budget; TRAIN_CONFIG defaults to
+#      configs/experiments/cuda-graph.toml (the default run with the update captured as a CUDA
+#      graph; system.txt gets the learner's "CUDA graph" log lines: captured, or refused and
+#      run op by op);
 #   5. the figures in $OUT (default runs/gpu-check): summary.json (the headline numbers),
 #      bench.jsonl, train.log, eval.csv, metrics.csv, run_summary.json, system.txt, build.log.
 #      At most 8 files, flat, so that all of them come back from a borrowed machine.
@@ -48,6 +51,7 @@ out=${OUT:-runs/gpu-check}
 run_dir=${GPU_CHECK_RUN:-runs/gpu-check/train}
 budget=${GPU_CHECK_BUDGET_S:-510}
 train_max=${TRAIN_SECONDS:-300}
+train_config=${TRAIN_CONFIG:-configs/experiments/cuda-graph.toml}
 updates=${BENCH_UPDATES:-500}
 cores=$(nproc)
 actors=${ACTORS:-$(((cores - 4) / 2))}
@@ -158,20 +162,25 @@ else
     set +e
     # SIGTERM: dvnav train stops its learner and actors cleanly and writes run_summary.json.
     timeout --signal=TERM --kill-after=40 "$train_s" \
-        "$bin" train --device cuda --actors "$actors" --stop-when-skilled --progress-every-s 10 \
-        --out "$run_dir" >"$out/train.log" 2>&1
+        "$bin" train --device cuda --config "$train_config" --actors "$actors" --stop-when-skilled \
+        --progress-every-s 10 --out "$run_dir" >"$out/train.log" 2>&1
     train_rc=$?
     set -e
     say "train exited with $train_rc (124: stopped at $train_s s)"
     for f in eval.csv metrics.csv run_summary.json; do
         [ -f "$run_dir/$f" ] && cp "$run_dir/$f" "$out/$f"
     done
-    [ -f "$run_dir/logs/learner.log" ] && { echo "== learner.log (end)"; tail -n 40 "$run_dir/logs/learner.log"; } >>"$sys"
+    [ -f "$run_dir/logs/learner.log" ] && {
+        echo "== learner.log: CUDA graph lines"
+        grep -i "cuda graph" "$run_dir/logs/learner.log" || echo "(none)"
+        echo "== learner.log (end)"
+        tail -n 40 "$run_dir/logs/learner.log"
+    } >>"$sys"
 fi
 
 # 5. The headline figures.
 command -v python3 >/dev/null 2>&1 || die "no python3 for summary.json; the raw figures are in $out/"
-python3 - "$out" "$gpu" "$build_s" "$train_s" "$train_rc" "$actors" "$(elapsed)" <<'EOF'
+TRAIN_CONFIG_USED=$train_config python3 - "$out" "$gpu" "$build_s" "$train_s" "$train_rc" "$actors" "$(elapsed)" <<'EOF'
 import json, os, sys
 out, gpu, build_s, train_s, train_rc, actors, total_s = sys.argv[1:]
 def load(p):
@@ -238,6 +247,7 @@ s = {
         "updates": run.get("updates"),
         "success_rate": run.get("success_rate"),
         "clean_shutdown": run.get("clean_shutdown"),
+        "config": os.environ.get("TRAIN_CONFIG_USED"),
     },
     "total_s": int(total_s),
 }

@@ -1140,6 +1140,15 @@ mod tests {
         assert!(!Config::default().to_toml_string().contains("subgoals"));
     }
 
+    #[test]
+    fn cuda_graph_stays_out_of_the_toml_while_off_and_round_trips_on() {
+        // Off, the key is not written, so the config hashes of earlier runs do not move.
+        assert!(!Config::default().to_toml_string().contains("cuda_graph"));
+        let cfg = Config::from_toml_str("[learner]\ncuda_graph = true\n").unwrap();
+        assert!(cfg.learner.cuda_graph);
+        assert_eq!(Config::from_toml_str(&cfg.to_toml_string()).unwrap(), cfg);
+    }
+
     /// The experiment log's configs (docs/results.md) stay runnable as the keys evolve.
     #[test]
     fn every_experiment_config_parses_and_validates() {
