@@ -200,8 +200,8 @@ pub fn sac_updates(cfg: &Config, run: &UpdateBench, dev: &Device) -> anyhow::Res
 
 /// How far apart two learners end after the same `updates` updates from the same networks,
 /// batches and noise, one replaying captured CUDA graphs and one launching each operation:
-/// the largest absolute difference over every weight, target, moment and log α, and the
-/// largest of the last metrics. The same arithmetic in another order of launches gives the
+/// the largest absolute difference over every weight, target, moment and log α. The same
+/// arithmetic in another order of launches gives the
 /// same numbers up to float rounding (cuBLAS may pick other kernels for the same product).
 #[derive(Clone, Copy, Debug, Serialize)]
 pub struct GraphCheck {

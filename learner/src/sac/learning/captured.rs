@@ -187,7 +187,13 @@ struct Captured {
     graphs: [Option<Graph>; 2],
     /// By kind: whether it ran once eagerly (which makes the parameter uploads capture needs).
     warmed: [bool; 2],
-    batch: usize,
+}
+
+impl Captured {
+    /// The batch size its buffers and graphs are for.
+    fn batch(&self) -> Result<usize> {
+        self.inputs.rewards.dim(0)
+    }
 }
 
 impl<P: super::GaussianPolicy, Q: super::QFunction> SacLearner<P, Q> {
@@ -204,14 +210,13 @@ impl<P: super::GaussianPolicy, Q: super::QFunction> SacLearner<P, Q> {
             return Ok(None);
         }
         let mut c = match self.graphs.captured.take() {
-            Some(c) if c.batch == batch.size => c,
+            Some(c) if c.batch()? == batch.size => c,
             _ => Captured {
                 inputs: Inputs::new(batch.size, batch.obs_dim, self.action_dim, &self.device)?,
                 critic_metrics: Var::zeros(2, DType::F32, &self.device)?,
                 policy_metrics: Var::zeros(2, DType::F32, &self.device)?,
                 graphs: [None, None],
                 warmed: [false; 2],
-                batch: batch.size,
             },
         };
         let policy = self.policy_due();
