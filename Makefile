@@ -110,8 +110,12 @@ python:
 # The package's tests (python/tests: Gymnasium conformance, determinism, the vector env against
 # single envs, `dvnav eval`'s episodes replayed step for step, the policy, the README's examples)
 # in their own venv under target/, with pytest and Stable-Baselines3 (PyTorch, ~3 GB once). The
-# extension is built unoptimized, like `make test`'s crates, which it shares. Skips, exit 0,
-# without python3 and its venv module.
+# extension is the one `make test` built (target/debug/lib_core.so, the workspace's one feature
+# set, unoptimized crates beside optimized dependencies): installed with the package's Python
+# files into the venv's site-packages, not rebuilt by maturin, whose `cargo rustc` of the one
+# crate resolves other features and rebuilt candle and everything above it (~7 min of CI).
+# `make python` is how users build it (maturin, optimized). Skips, exit 0, without python3 and
+# its venv module.
 PY_TEST_ENV := target/pyenv-python
 test-python:
 	@if ! command -v $(PYTHON) >/dev/null 2>&1 || ! $(PYTHON) -c 'import venv, ensurepip' >/dev/null 2>&1; then \
@@ -121,9 +125,9 @@ test-python:
 	set -e; \
 	[ -x $(PY_TEST_ENV)/bin/python ] || $(PYTHON) -m venv $(PY_TEST_ENV); \
 	$(PY_TEST_ENV)/bin/pip install --quiet --disable-pip-version-check -r python/requirements-test.txt; \
-	cd python && VIRTUAL_ENV=$(CURDIR)/$(PY_TEST_ENV) PATH=$(CURDIR)/$(PY_TEST_ENV)/bin:$$PATH maturin develop --quiet; cd ..; \
 	$(CARGO) build $(DVNAV_BIN); \
-	cd python && DVNAV_BIN=$(CURDIR)/target/debug/dvnav ../$(PY_TEST_ENV)/bin/python -m pytest -q -p no:cacheprovider tests
+	$(PY_TEST_ENV)/bin/python scripts/install_python_ext.py target/debug/lib_core.so python/dvnav; \
+	cd python && DVNAV_BIN=$(CURDIR)/target/debug/dvnav ../$(PY_TEST_ENV)/bin/pytest -q -p no:cacheprovider tests
 
 # dvnav beside Stable-Baselines3 on this machine (scripts/bench_peers.py): env steps/s through
 # Python, and time to skill of `dvnav train` against SB3's SAC with the same network and
@@ -182,14 +186,17 @@ cuda-toolkit:
 # target/cuda/ (target/release/ stays the CPU build). It links on a machine without a GPU and
 # runs where an NVIDIA driver >= 580 (CUDA 13.0) is. CUDA_COMPUTE_CAP: nvidia-smi's, else 80.
 # Then `--version` with the stub driver: the binary links and starts.
+# CUDA_PROFILE=cuda-check (CI): the same build unoptimized, to check that it compiles and links.
 CUDA_TARGET := target/cuda
+CUDA_PROFILE ?= release
 build-cuda:
 	@set -e; exports=$$(scripts/cuda_toolkit.sh); eval "$$exports"; \
-	$(CARGO) build --release --features cuda --target-dir $(CUDA_TARGET) --bin dvnav; \
-	LD_LIBRARY_PATH="$$CUDA_ROOT/lib/stubs:$$LD_LIBRARY_PATH" ./$(CUDA_TARGET)/release/dvnav --version
+	$(CARGO) build --profile $(CUDA_PROFILE) --features cuda --target-dir $(CUDA_TARGET) --bin dvnav; \
+	LD_LIBRARY_PATH="$$CUDA_ROOT/lib/stubs:$$LD_LIBRARY_PATH" ./$(CUDA_TARGET)/$(CUDA_PROFILE)/dvnav --version
 
 # For a GPU machine with no Rust or no network (the `device` tool's): the CUDA build, stripped,
 # in target/gpu/dvnav, to carry there and run as `bash scripts/gpu_check.sh --bin target/gpu/dvnav`.
+gpu-bin: CUDA_PROFILE = release
 gpu-bin: build-cuda
 	mkdir -p target/gpu
 	strip -o target/gpu/dvnav $(CUDA_TARGET)/release/dvnav
