@@ -113,7 +113,9 @@ python:
 # extension is the one `make test` built (target/debug/lib_core.so, the workspace's one feature
 # set, unoptimized crates beside optimized dependencies): installed with the package's Python
 # files into the venv's site-packages, not rebuilt by maturin, whose `cargo rustc` of the one
-# crate resolves other features and rebuilt candle and everything above it (~7 min of CI).
+# crate resolves other features and rebuilt candle and everything above it (~6 of its 8 min
+# in a clean CI run). pytest runs as the venv's `pytest` script, not `python -m pytest`, which
+# would put python/ (the package's sources, without the extension) first on the path.
 # `make python` is how users build it (maturin, optimized). Skips, exit 0, without python3 and
 # its venv module.
 PY_TEST_ENV := target/pyenv-python

@@ -22,7 +22,7 @@ from pathlib import Path
 
 def main() -> int:
     if len(sys.argv) != 3:
-        print(__doc__.strip().splitlines()[2].strip(), file=sys.stderr)
+        print("usage: python install_python_ext.py EXTENSION.so PACKAGE_DIR", file=sys.stderr)
         return 2
     ext, package = Path(sys.argv[1]), Path(sys.argv[2])
     if not ext.is_file():
