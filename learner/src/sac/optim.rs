@@ -174,28 +174,11 @@ impl Adam {
 /// as [`super::average::polyak`], bit for bit), the tensor expression written back elsewhere.
 pub fn polyak_in_place(target: &Var, online: &Tensor, tau: f64) -> Result<()> {
     if fusable(&[target.as_tensor(), online]) {
-        let op = Polyak { keep: (1.0 - tau) as f32, take: tau as f32 };
+        // θ̄ ← (1 − τ)·θ̄ + τ·θ is a moving average: Adam's first-moment pass with β = 1 − τ.
+        let op = Ema { beta: (1.0 - tau) as f32, rest: tau as f32, square: false };
         return target.as_tensor().inplace_op2(online, &op);
     }
     target.set(&super::average::polyak(target.as_tensor(), online, tau)?)
-}
-
-/// One pass of [`polyak_in_place`].
-struct Polyak {
-    keep: f32,
-    take: f32,
-}
-
-impl InplaceOp2 for Polyak {
-    fn name(&self) -> &'static str {
-        "polyak"
-    }
-
-    fn cpu_fwd(&self, t: &mut CpuStorage, lt: &Layout, o: &CpuStorage, lo: &Layout) -> Result<()> {
-        let (t, o) = (f32s_mut(t, lt)?, f32s(o, lo)?);
-        t.iter_mut().zip(o).for_each(|(t, o)| *t = *t * self.keep + *o * self.take);
-        Ok(())
-    }
 }
 
 /// Where a step's bias corrections come from.
@@ -228,8 +211,9 @@ fn f32s_mut<'a>(s: &'a mut CpuStorage, l: &Layout) -> Result<&'a mut [f32]> {
     }
 }
 
-/// A moment's update in place, one pass: `m ← β·m + (1 − β)·g` (or `g²`). The same f32
-/// operations, in the same order, as the tensor expression of [`Adam::step`]'s other path.
+/// A moving average in place, one pass: `m ← β·m + (1 − β)·g` (or `g²`), for Adam's moments
+/// and [`polyak_in_place`]. The same f32 operations, in the same order, as the tensor
+/// expressions of [`Adam::step`]'s other path and of `average::polyak`.
 struct Ema {
     beta: f32,
     /// 1 − β, computed in f64 as the tensor expression's scalar is (1 − 0.9f32 is not 0.1f32).
