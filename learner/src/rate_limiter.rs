@@ -11,12 +11,16 @@
 //! ⌊(N − learning_starts + 1)·ratio⌋ updates however far ingestion had run ahead. What arrives
 //! after (the actors' batches in flight) goes into the buffer but owes no updates, so the end
 //! of a run takes at most the `max_steps_ahead` steps' worth of updates.
+//!
+//! The ratio may change during a run ([`RateLimiter::set_ratio`], a curriculum stage's own
+//! ratio): the updates allowed then continue from what was allowed at the change, at the new
+//! rate, so nothing owed is forgiven and nothing is owed twice.
 
 use std::sync::{Condvar, Mutex};
 use std::time::Duration;
 use tokio::sync::watch;
 
-#[derive(Debug, Default)]
+#[derive(Clone, Copy, Debug, Default)]
 struct State {
     inserted: u64,
     updates: u64,
@@ -25,6 +29,19 @@ struct State {
     ingest_stopped: bool,
     /// Transitions inserted when ingestion stopped: updates are owed for these only.
     owed_for: Option<u64>,
+    /// Updates per inserted transition from `base.start` on.
+    ratio: f64,
+    /// Where the current ratio took over.
+    base: Base,
+}
+
+/// The point from which the current ratio counts: `updates` allowed at `start - 1` inserted
+/// transitions, then `ratio` per transition. At the start of a run `start` is
+/// `learning_starts` and `updates` 0.
+#[derive(Clone, Copy, Debug, Default)]
+struct Base {
+    start: u64,
+    updates: u64,
 }
 
 /// What [`RateLimiter::pressure`] reports.
@@ -41,7 +58,6 @@ pub struct Pressure {
 /// The shared ratio keeper between async ingestion and the trainer thread.
 #[derive(Debug)]
 pub struct RateLimiter {
-    ratio: f64,
     learning_starts: u64,
     max_steps_ahead: u64,
     state: Mutex<State>,
@@ -53,11 +69,11 @@ impl RateLimiter {
     /// `ratio` updates per inserted transition once `learning_starts` transitions are in.
     pub fn new(ratio: f64, learning_starts: u64, max_steps_ahead: u64) -> Self {
         let (updates_tx, _) = watch::channel(0);
+        let base = Base { start: learning_starts, updates: 0 };
         Self {
-            ratio,
             learning_starts,
             max_steps_ahead,
-            state: Mutex::new(State::default()),
+            state: Mutex::new(State { ratio, base, ..State::default() }),
             trainer_wakeup: Condvar::new(),
             updates_tx,
         }
@@ -73,25 +89,66 @@ impl RateLimiter {
 
     /// Updates allowed now: for what was inserted, up to the budget once ingestion stopped.
     fn allowed(&self, s: &State) -> u64 {
-        self.updates_allowed(s.owed_for.map_or(s.inserted, |n| n.min(s.inserted)))
+        Self::allowed_at(s, s.owed_for.map_or(s.inserted, |n| n.min(s.inserted)))
     }
 
-    /// Updates allowed once `inserted` transitions have arrived.
+    /// Updates allowed once `inserted` transitions have arrived, at the current ratio (for a
+    /// count before the current ratio took over: what was allowed when it did).
     pub fn updates_allowed(&self, inserted: u64) -> u64 {
-        if inserted < self.learning_starts {
-            0
-        } else {
-            ((inserted - self.learning_starts + 1) as f64 * self.ratio).floor() as u64
-        }
+        Self::allowed_at(&self.state.lock().expect("rate limiter lock"), inserted)
     }
 
-    fn may_insert(&self, inserted: u64, updates: u64) -> bool {
-        if inserted < self.learning_starts {
+    fn allowed_at(s: &State, inserted: u64) -> u64 {
+        if inserted < s.base.start {
+            // Before `learning_starts` (0), or before the current ratio took over.
+            return s.base.updates;
+        }
+        s.base.updates + ((inserted - s.base.start + 1) as f64 * s.ratio).floor() as u64
+    }
+
+    fn may_insert(&self, s: &State) -> bool {
+        if s.inserted < self.learning_starts {
             return true;
         }
         // Steps inserted beyond what the updates done so far account for.
-        let covered = self.learning_starts as f64 + updates as f64 / self.ratio;
-        (inserted as f64) - covered < self.max_steps_ahead as f64
+        let covered = s.base.start as f64 + (s.updates as f64 - s.base.updates as f64) / s.ratio;
+        (s.inserted as f64) - covered < self.max_steps_ahead as f64
+    }
+
+    /// The replay ratio from now on (a curriculum stage's own): the updates allowed continue
+    /// from what the old ratio allowed for what is inserted now. The same ratio changes
+    /// nothing.
+    pub fn set_ratio(&self, ratio: f64) {
+        let mut s = self.state.lock().expect("rate limiter lock");
+        // After the budget the run only pays what it owes at the ratio it owed it.
+        if ratio == s.ratio || s.ingest_stopped {
+            return;
+        }
+        if s.inserted >= self.learning_starts {
+            let allowed = Self::allowed_at(&s, s.inserted);
+            s.base = Base { start: s.inserted + 1, updates: allowed };
+        }
+        s.ratio = ratio;
+        // Either side may now go on: the trainer if the new ratio allows more, ingestion if
+        // it allows fewer.
+        self.trainer_wakeup.notify_all();
+        let u = s.updates;
+        self.updates_tx.send_replace(u);
+    }
+
+    /// A resumed run's ratio: the updates done so far are all that is allowed until `start`
+    /// transitions are in, then `ratio` per transition. For runs whose ratio changed on the
+    /// way, where [`RateLimiter::restore`]'s count cannot be read back through one ratio.
+    pub fn continue_at(&self, ratio: f64, start: u64) {
+        let mut s = self.state.lock().expect("rate limiter lock");
+        s.base = Base { start, updates: s.updates };
+        s.ratio = ratio;
+        self.trainer_wakeup.notify_all();
+    }
+
+    /// The current replay ratio.
+    pub fn ratio(&self) -> f64 {
+        self.state.lock().expect("rate limiter lock").ratio
     }
 
     /// Waits (asynchronously) until ingestion may proceed; returns at once when closed.
@@ -100,7 +157,7 @@ impl RateLimiter {
         loop {
             {
                 let s = self.state.lock().expect("rate limiter lock");
-                if s.closed || s.ingest_stopped || self.may_insert(s.inserted, s.updates) {
+                if s.closed || s.ingest_stopped || self.may_insert(&s) {
                     return;
                 }
             }
@@ -117,9 +174,7 @@ impl RateLimiter {
         let s = self.state.lock().expect("rate limiter lock");
         Pressure {
             updates_owed: self.allowed(&s).saturating_sub(s.updates),
-            ingest_blocked: !s.closed
-                && !s.ingest_stopped
-                && !self.may_insert(s.inserted, s.updates),
+            ingest_blocked: !s.closed && !s.ingest_stopped && !self.may_insert(&s),
             closed: s.closed,
         }
     }
@@ -214,12 +269,65 @@ mod tests {
     }
 
     #[test]
+    fn a_new_ratio_counts_on_from_what_the_old_one_allowed() {
+        let rl = RateLimiter::new(0.5, 10, 4);
+        rl.inserted(29);
+        for _ in 0..4 {
+            rl.updated();
+        }
+        assert_eq!(rl.pressure().updates_owed, 6);
+        rl.set_ratio(0.25);
+        assert_eq!(rl.ratio(), 0.25);
+        // Nothing owed is forgiven; the new rate counts from the next transition on.
+        assert_eq!(rl.pressure().updates_owed, 6);
+        assert_eq!([30, 32, 33, 37, 41].map(|n| rl.updates_allowed(n)), [10, 10, 11, 12, 13]);
+        // Ingestion may lead what the 10 updates cover (29 transitions) by 4 steps at the
+        // new rate, once the trainer has paid what it owes.
+        for _ in 0..6 {
+            rl.updated();
+        }
+        rl.inserted(4);
+        assert!(!rl.pressure().ingest_blocked);
+        rl.inserted(1);
+        assert!(rl.pressure().ingest_blocked, "34 inserted, 10 updates: 4 ahead of 30");
+        rl.updated();
+        assert!(!rl.pressure().ingest_blocked, "11 updates cover 34 at 0.25");
+        // The same ratio changes nothing; after the budget nothing changes.
+        rl.set_ratio(0.25);
+        assert_eq!(rl.updates_allowed(37), 12);
+        rl.stop_ingest();
+        rl.set_ratio(1.0);
+        assert_eq!(rl.ratio(), 0.25);
+    }
+
+    #[test]
+    fn a_resumed_run_waits_for_start_then_counts_at_its_ratio() {
+        let rl = RateLimiter::new(0.25, 10, 4);
+        rl.restore(500, 40);
+        rl.continue_at(0.5, 510);
+        assert_eq!([500, 509, 510, 513].map(|n| rl.updates_allowed(n)), [40, 40, 40, 42]);
+        assert_eq!(rl.pressure().updates_owed, 0);
+    }
+
+    #[test]
+    fn a_ratio_set_before_learning_starts_is_the_ratio_from_the_start() {
+        let rl = RateLimiter::new(0.5, 10, 4);
+        rl.inserted(5);
+        rl.set_ratio(1.0);
+        assert_eq!([9, 10, 11, 29].map(|n| rl.updates_allowed(n)), [0, 1, 2, 20]);
+    }
+
+    #[test]
     fn ingestion_waits_until_training_catches_up() {
         let rl = RateLimiter::new(1.0, 10, 4);
-        assert!(rl.may_insert(0, 0));
-        assert!(rl.may_insert(13, 0));
-        assert!(!rl.may_insert(14, 0));
-        assert!(rl.may_insert(14, 1));
+        let may_insert = |inserted, updates| {
+            let s = State { inserted, updates, ..*rl.state.lock().unwrap() };
+            rl.may_insert(&s)
+        };
+        assert!(may_insert(0, 0));
+        assert!(may_insert(13, 0));
+        assert!(!may_insert(14, 0));
+        assert!(may_insert(14, 1));
     }
 
     #[tokio::test]

@@ -418,6 +418,22 @@ pub struct CurriculumConfig {
     /// add it once that skill is there. Decided by the run's stage, so the earlier rooms
     /// revisited through `earlier_share` get it too once the run is there.
     pub robust_from_stage: Option<u32>,
+    /// The replay ratio (updates per environment step) of each stage, in order; stages past
+    /// the list's end keep its last value. Empty (the default): `sac.updates_per_env_step` in
+    /// every stage. Environment steps are nearly free and the learner sets the pace, so a
+    /// later stage that only has to show the skill in a smaller room may need fewer updates
+    /// per episode than the first, where the skill is learned (docs/results.md, "Time to
+    /// skill").
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub replay_ratios: Vec<f64>,
+}
+
+impl CurriculumConfig {
+    /// The replay ratio of `stage`: its entry of [`Self::replay_ratios`], the last entry past
+    /// the list's end, or `default` (`sac.updates_per_env_step`) when the list is empty.
+    pub fn replay_ratio(&self, stage: usize, default: f64) -> f64 {
+        self.replay_ratios.get(stage).or(self.replay_ratios.last()).copied().unwrap_or(default)
+    }
 }
 
 impl Default for CurriculumConfig {
@@ -429,6 +445,7 @@ impl Default for CurriculumConfig {
             earlier_share: 0.0,
             stop_when_skilled: false,
             robust_from_stage: None,
+            replay_ratios: Vec::new(),
         }
     }
 }
@@ -776,6 +793,19 @@ impl Config {
         }
         if !(0.0..=1.0).contains(&c.earlier_share) {
             return Err(bad("curriculum.earlier_share", "must be in [0, 1]"));
+        }
+        if c.replay_ratios.len() > c.rooms.len() {
+            return Err(bad(
+                "curriculum.replay_ratios",
+                format!(
+                    "has {} entries, but the curriculum has {} stages (one ratio per stage)",
+                    c.replay_ratios.len(),
+                    c.rooms.len()
+                ),
+            ));
+        }
+        for (i, &r) in c.replay_ratios.iter().enumerate() {
+            positive(&format!("curriculum.replay_ratios[{i}]"), r)?;
         }
         if self.logging.episodes_per_file == 0 {
             return Err(bad("logging.episodes_per_file", "must be at least 1"));
@@ -1164,6 +1194,21 @@ mod tests {
             }
         }
         assert!(n >= 3, "{n} configs in {}", dir.display());
+    }
+
+    #[test]
+    fn replay_ratios_name_each_stage_and_the_last_holds() {
+        let cfg = Config::from_toml_str("[curriculum]\nreplay_ratios = [0.25, 0.0625]\n").unwrap();
+        let c = &cfg.curriculum;
+        assert_eq!([0, 1, 3].map(|s| c.replay_ratio(s, 1.0)), [0.25, 0.0625, 0.0625]);
+        assert_eq!(Config::from_toml_str(&cfg.to_toml_string()).unwrap(), cfg);
+        assert_eq!(Config::default().curriculum.replay_ratio(2, 0.25), 0.25);
+        assert!(!Config::default().to_toml_string().contains("replay_ratios"));
+        let err = Config::from_toml_str("[curriculum]\nreplay_ratios = [0.25, 0]\n").unwrap_err();
+        assert_eq!(err.key, "curriculum.replay_ratios[1]");
+        let err =
+            Config::from_toml_str("[curriculum]\nreplay_ratios = [1, 1, 1, 1, 1]\n").unwrap_err();
+        assert_eq!(err.key, "curriculum.replay_ratios");
     }
 
     #[test]

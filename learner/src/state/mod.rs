@@ -108,7 +108,7 @@ impl LearnerState {
         });
         Self {
             limiter: RateLimiter::new(
-                cfg.sac.updates_per_env_step,
+                cfg.curriculum.replay_ratio(0, cfg.sac.updates_per_env_step),
                 cfg.sac.learning_starts,
                 cfg.learner.max_steps_ahead,
             ),
@@ -552,7 +552,9 @@ impl LearnerState {
             if let Some(change) =
                 c.curriculum.record(e.stage, success, uncounted, received, updates)
             {
-                tracing::info!(stage = change.stage, room = %change.room, env_steps = received, "curriculum: next stage");
+                let ratio = self.replay_ratio(change.stage as usize);
+                tracing::info!(stage = change.stage, room = %change.room, env_steps = received, replay_ratio = ratio, "curriculum: next stage");
+                self.limiter.set_ratio(ratio);
             }
             if !was_skilled && let Some(s) = c.curriculum.skilled() {
                 tracing::info!(room = %s.room, env_steps = s.env_steps, updates = s.updates, "curriculum: last room at the threshold (skilled)");
@@ -585,6 +587,11 @@ impl LearnerState {
         drop(c);
         self.variables.set_run_state(stage, &room, warmup, done);
         Ok(Ack { accepted: n as u32, duplicate: false })
+    }
+
+    /// The replay ratio of curriculum stage `stage`.
+    fn replay_ratio(&self, stage: usize) -> f64 {
+        self.cfg.curriculum.replay_ratio(stage, self.cfg.sac.updates_per_env_step)
     }
 
     /// Samples a training batch.
@@ -640,6 +647,7 @@ impl LearnerState {
             .clone()
             .unwrap_or(CurriculumState { stage: saved.stage, ..Default::default() });
         c.curriculum = Curriculum::restore(self.cfg.curriculum.clone(), curriculum);
+        let replay_restored = replay.is_some();
         let inserted = match replay {
             Some(r) => {
                 *self.replay.lock().expect("replay lock") = r;
@@ -651,6 +659,14 @@ impl LearnerState {
                 .saturating_sub(1),
         };
         self.limiter.restore(inserted, updates);
+        if !self.cfg.curriculum.replay_ratios.is_empty() {
+            // The ratio changed with the stages, so the count above (one ratio all along) is
+            // not what was allowed: go on from the updates done, at this stage's ratio, once
+            // `learning_starts` transitions refill an emptied buffer.
+            let refill = if replay_restored { 1 } else { self.cfg.sac.learning_starts };
+            self.limiter
+                .continue_at(self.replay_ratio(c.curriculum.stage() as usize), inserted + refill);
+        }
         let warmup = c.episodes < self.cfg.warmup.pid_episodes;
         let (stage, room) = (c.curriculum.stage(), c.curriculum.room().to_string());
         drop(c);

@@ -346,3 +346,58 @@ fn actors_share_the_transitions_in_flight() {
     s.set_connected(regs[0].actor_id, false);
     assert_eq!(s.batch_transitions_advice(false), 22);
 }
+
+/// A batch of one successful episode of `n` transitions in curriculum stage `stage`.
+fn success_batch(
+    cfg: &Config,
+    n: usize,
+    actor_id: u32,
+    seq: u64,
+    stage: u32,
+) -> pb::TransitionBatch {
+    let d = cfg.obs_dim();
+    let mut b = TransitionBatch::with_capacity(d, n);
+    for i in 0..n {
+        b.push(&vec![1.0; d], [0.0, 0.0], 0.5, &vec![1.0; d], i == n - 1, false, 1);
+    }
+    b.episodes.push(dvnav_link::core::EpisodeStats {
+        env_index: 0,
+        stage,
+        room: cfg.curriculum.rooms[stage as usize].clone(),
+        outcome: Outcome::Success,
+        steps: n as u32,
+        episode_return: 10.0,
+        policy_version: 1,
+        warmup: false,
+        varied: false,
+    });
+    wire::batch_to_proto(&b, actor_id, seq)
+}
+
+/// `curriculum.replay_ratios`: the limiter runs at the first stage's ratio, and at the next
+/// stage's from the batch that moves the run on.
+#[tokio::test]
+async fn each_curriculum_stage_runs_at_its_own_replay_ratio() {
+    let mut cfg = small_config();
+    cfg.run.steps = 10_000;
+    cfg.warmup.pid_episodes = 0;
+    cfg.curriculum.window = 2;
+    cfg.curriculum.threshold = 0.5;
+    cfg.curriculum.replay_ratios = vec![0.5, 0.125];
+    let s = LearnerState::new(cfg.clone(), "r".into(), None, vec![]);
+    let id = s.register("a", dvnav_proto::PROTOCOL_VERSION).unwrap().actor_id;
+    assert_eq!(s.limiter().ratio(), 0.5);
+    s.ingest(id, success_batch(&cfg, 20, id, 0, 0)).await.unwrap();
+    assert_eq!(s.limiter().ratio(), 0.5, "one episode of a window of two");
+    s.ingest(id, success_batch(&cfg, 20, id, 1, 0)).await.unwrap();
+    assert_eq!(s.curriculum_state().stage, 1);
+    assert_eq!(s.limiter().ratio(), 0.125);
+    // 40 in at 0.5 from learning_starts (2): 19 updates allowed; then 0.125 per transition.
+    assert_eq!(s.limiter().updates_allowed(40), 19);
+    assert_eq!(s.limiter().updates_allowed(48), 20);
+    // The last stage's ratio holds for the stages past the list.
+    s.ingest(id, success_batch(&cfg, 20, id, 2, 1)).await.unwrap();
+    s.ingest(id, success_batch(&cfg, 20, id, 3, 1)).await.unwrap();
+    assert_eq!(s.curriculum_state().stage, 2);
+    assert_eq!(s.limiter().ratio(), 0.125);
+}

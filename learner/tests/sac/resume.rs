@@ -201,3 +201,29 @@ fn without_a_saved_replay_training_waits_for_fresh_transitions() {
     assert!(allowed(9) < 40, "no update with 9 fresh transitions");
     assert_eq!((allowed(10), allowed(12)), (40, 41));
 }
+
+/// With `curriculum.replay_ratios` the count of transitions behind the updates cannot be read
+/// back through one ratio: a resumed run goes on from its updates at its stage's ratio, once
+/// `learning_starts` fresh transitions have refilled the emptied buffer.
+#[test]
+fn a_run_with_stage_ratios_resumes_at_its_stages_ratio() {
+    let mut cfg = tiny_config();
+    cfg.sac.learning_starts = 10;
+    cfg.sac.batch_size = 4;
+    cfg.curriculum.replay_ratios = vec![0.25, 0.5];
+    let dir = tempfile::tempdir().unwrap();
+    let a = learner(&cfg, 1);
+    let meta =
+        CheckpointMeta { updates: 40, env_steps: 300, weight_version: 9, ..Default::default() };
+    checkpoint::write(dir.path(), &a, &meta, "", None).unwrap();
+    let state = LearnerState::new(cfg.clone(), "r".into(), None, vec![]);
+    assert_eq!(state.limiter().ratio(), 0.25);
+    let mut b = learner(&cfg, 2);
+    let ckpt = Checkpoint::latest(dir.path()).unwrap();
+    ckpt.resume(&mut b, &state).unwrap();
+    let limiter = state.limiter();
+    let (inserted, updates) = limiter.counters();
+    assert_eq!((updates, limiter.ratio()), (40, 0.25), "stage 0's ratio");
+    let allowed = |fresh: u64| limiter.updates_allowed(inserted + fresh);
+    assert_eq!((allowed(9), allowed(10), allowed(13)), (40, 40, 41));
+}
