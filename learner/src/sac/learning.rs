@@ -134,11 +134,23 @@ pub fn temperature_loss(
 
 /// Polyak averaging of a target critic towards its online critic: φ̂ ← τ φ + (1 − τ) φ̂.
 pub fn soft_update<Q>(target: &Owned<Q>, online: &Owned<Q>, tau: f64) -> Result<()> {
-    for ((tn, t), (on, o)) in target.named_vars().iter().zip(online.named_vars().iter()) {
-        debug_assert_eq!(tn, on);
-        polyak_in_place(t, o.as_tensor(), tau)?;
+    for (t, o) in target_pairs(target, online) {
+        polyak_in_place(&t, o.as_tensor(), tau)?;
     }
     Ok(())
+}
+
+/// A target network's variables beside its online network's, name by name.
+fn target_pairs<Q>(target: &Owned<Q>, online: &Owned<Q>) -> Vec<(Var, Var)> {
+    target
+        .named_vars()
+        .into_iter()
+        .zip(online.named_vars())
+        .map(|((tn, t), (on, o))| {
+            debug_assert_eq!(tn, on);
+            (t, o)
+        })
+        .collect()
 }
 
 /// What one update reports.
@@ -373,6 +385,15 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
             Some(c) => opt.step_corrected(grads, &c.narrow(0, 2 * k, 2)?),
             None => opt.step(grads),
         };
+        // The optimizer steps and the targets' Polyak pass are per-variable jobs, spread over
+        // the worker threads on a CPU; a GPU (and its captured graph) gets them from this
+        // thread alone.
+        let one = Workers::sequential();
+        let workers = if self.device.is_cpu() { &self.workers } else { &one };
+        let step_shards = |opt: &mut Adam, stores: Vec<GradStore>, k: usize| match corrections {
+            Some(_) => adam(opt, &shards::sum_grads(stores, opt.vars())?, k),
+            None => opt.step_shards(&stores, workers),
+        };
 
         // Critics: each shard's loss is its share of L(φ1) + L(φ2) over the batch.
         let parts = self.workers.map(shards, |s| {
@@ -394,8 +415,7 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
             Ok((loss.backward()?, loss.detach(), q_mean.detach()))
         })?;
         let (stores, critic, q_mean) = unzip3(parts);
-        let grads = shards::sum_grads(stores, self.critic_opt.vars())?;
-        adam(&mut self.critic_opt, &grads, 0)?;
+        step_shards(&mut self.critic_opt, stores, 0)?;
         let mut losses = StepLosses { critic, q_mean, policy: None };
 
         // Policy and temperature, delayed.
@@ -435,8 +455,7 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
                 Ok((loss.backward()?, loss.detach(), pi.log_prob.detach()))
             })?;
             let (stores, actor, log_probs) = unzip3(parts);
-            let grads = shards::sum_grads(stores, self.actor_opt.vars())?;
-            adam(&mut self.actor_opt, &grads, 1)?;
+            step_shards(&mut self.actor_opt, stores, 1)?;
             let log_prob = Tensor::cat(&log_probs, 0)?;
             if self.cfg.autotune_alpha {
                 let loss_a = temperature_loss(
@@ -452,8 +471,14 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
             losses.policy = Some((actor, log_prob.mean_all()?.neg()?));
         }
 
-        soft_update(&self.nets.target1, &self.nets.critic1, self.cfg.tau)?;
-        soft_update(&self.nets.target2, &self.nets.critic2, self.cfg.tau)?;
+        let pairs: Vec<(Var, Var)> =
+            [(&self.nets.target1, &self.nets.critic1), (&self.nets.target2, &self.nets.critic2)]
+                .into_iter()
+                .flat_map(|(target, online)| target_pairs(target, online))
+                .collect();
+        let tau = self.cfg.tau;
+        workers
+            .for_each(pairs.len(), |i| polyak_in_place(&pairs[i].0, pairs[i].1.as_tensor(), tau))?;
         Ok(losses)
     }
 

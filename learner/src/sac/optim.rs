@@ -6,6 +6,7 @@
 //! rather than a dozen tensor operations that each allocate and write a new tensor; the
 //! arithmetic is the same, bit for bit (tested).
 
+use super::shards::Workers;
 use candle_core::backprop::GradStore;
 use candle_core::{CpuStorage, DType, InplaceOp2, InplaceOp3, Layout, Result, Tensor, Var};
 
@@ -47,11 +48,15 @@ impl Adam {
     /// One Adam step from the gradients of a backward pass; variables without a gradient are
     /// left alone.
     pub fn step(&mut self, grads: &GradStore) -> Result<()> {
+        let corrections = self.count_step_corrections();
+        self.apply(grads, corrections)
+    }
+
+    /// Counts a step and gives its bias corrections 1 − β₁ᵗ, 1 − β₂ᵗ.
+    fn count_step_corrections(&mut self) -> Corrections<'static> {
         self.step += 1;
         let t = self.step as i32;
-        let bias1 = 1.0 - self.beta1.powi(t);
-        let bias2 = 1.0 - self.beta2.powi(t);
-        self.apply(grads, Corrections::Numbers { bias1, bias2 })
+        Corrections::Numbers { bias1: 1.0 - self.beta1.powi(t), bias2: 1.0 - self.beta2.powi(t) }
     }
 
     /// One Adam step whose bias corrections 1/(1 − β₁ᵗ), 1/(1 − β₂ᵗ) are read from `inv_bias`,
@@ -79,46 +84,67 @@ impl Adam {
     fn apply(&mut self, grads: &GradStore, corrections: Corrections) -> Result<()> {
         for (i, (_, var)) in self.vars.iter().enumerate() {
             let Some(g) = grads.get(var.as_tensor()) else { continue };
-            // candle detaches inner gradients but not those of the leaves: a variable's gradient
-            // can still reference the forward graph. Detached here, the moments never chain one
-            // update's graph to the next (without this the learner grew by ~7 MB per update
-            // until the OOM killer stopped it; see tests/issue_2_adam_memory.rs).
-            let g = g.detach();
-            if let Corrections::Numbers { bias1, bias2 } = corrections
-                && self.fuse
-                && fusable(&[var.as_tensor(), &g, &self.first[i], &self.second[i]])
-            {
-                let ema = |beta: f64, square| Ema {
-                    beta: beta as f32,
-                    rest: (1.0 - beta) as f32,
-                    square,
-                };
-                self.first[i].inplace_op2(&g, &ema(self.beta1, false))?;
-                self.second[i].inplace_op2(&g, &ema(self.beta2, true))?;
-                let apply = Apply {
-                    inv_bias1: (1.0 / bias1) as f32,
-                    inv_bias2: (1.0 / bias2) as f32,
-                    eps: self.eps as f32,
-                    lr: self.lr as f32,
-                };
-                var.as_tensor().inplace_op3(&self.first[i], &self.second[i], &apply)?;
-                continue;
-            }
-            let m = ((&self.first[i] * self.beta1)? + (&g * (1.0 - self.beta1))?)?.detach();
-            let v = ((&self.second[i] * self.beta2)? + (g.sqr()? * (1.0 - self.beta2))?)?.detach();
-            let (m_hat, v_hat) = match corrections {
-                Corrections::Numbers { bias1, bias2 } => ((&m / bias1)?, (&v / bias2)?),
-                Corrections::Tensors { inv1, inv2 } => {
-                    (m.broadcast_mul(inv1)?, v.broadcast_mul(inv2)?)
-                }
-            };
-            let update = (m_hat / (v_hat.sqrt()? + self.eps)?)?;
-            var.set(&(var.as_tensor() - (update * self.lr)?)?)?;
-            // Written into the moments' own storage: a captured update must leave every
-            // tensor it outlives where it found it.
-            self.first[i].slice_set(&m, 0, 0)?;
-            self.second[i].slice_set(&v, 0, 0)?;
+            self.step_var(i, g, corrections)?;
         }
+        Ok(())
+    }
+
+    /// One Adam step from the gradients of several backward passes (the shards of one
+    /// minibatch, [`super::shards`]) added up, each variable's sum and step as one job on
+    /// `workers`: the variables are independent, so the step needs no second core's worth
+    /// of waiting on the main thread. Each sum is in shard order, as
+    /// [`super::shards::sum_grads`] adds them, so the result is the same bit for bit.
+    pub fn step_shards(&mut self, stores: &[GradStore], workers: &Workers) -> Result<()> {
+        let corrections = self.count_step_corrections();
+        workers.for_each(self.vars.len(), |i| {
+            let var = self.vars[i].1.as_tensor();
+            let mut parts = stores.iter().filter_map(|store| store.get(var));
+            let Some(first) = parts.next() else { return Ok(()) };
+            let mut g = first.clone();
+            for part in parts {
+                g = (g + part)?;
+            }
+            self.step_var(i, &g, corrections)
+        })
+    }
+
+    /// Steps variable `i` by its gradient `g`.
+    fn step_var(&self, i: usize, g: &Tensor, corrections: Corrections) -> Result<()> {
+        let var = &self.vars[i].1;
+        // candle detaches inner gradients but not those of the leaves: a variable's gradient
+        // can still reference the forward graph. Detached here, the moments never chain one
+        // update's graph to the next (without this the learner grew by ~7 MB per update
+        // until the OOM killer stopped it; see tests/issue_2_adam_memory.rs).
+        let g = g.detach();
+        if let Corrections::Numbers { bias1, bias2 } = corrections
+            && self.fuse
+            && fusable(&[var.as_tensor(), &g, &self.first[i], &self.second[i]])
+        {
+            let ema =
+                |beta: f64, square| Ema { beta: beta as f32, rest: (1.0 - beta) as f32, square };
+            self.first[i].inplace_op2(&g, &ema(self.beta1, false))?;
+            self.second[i].inplace_op2(&g, &ema(self.beta2, true))?;
+            let apply = Apply {
+                inv_bias1: (1.0 / bias1) as f32,
+                inv_bias2: (1.0 / bias2) as f32,
+                eps: self.eps as f32,
+                lr: self.lr as f32,
+            };
+            var.as_tensor().inplace_op3(&self.first[i], &self.second[i], &apply)?;
+            return Ok(());
+        }
+        let m = ((&self.first[i] * self.beta1)? + (&g * (1.0 - self.beta1))?)?.detach();
+        let v = ((&self.second[i] * self.beta2)? + (g.sqr()? * (1.0 - self.beta2))?)?.detach();
+        let (m_hat, v_hat) = match corrections {
+            Corrections::Numbers { bias1, bias2 } => ((&m / bias1)?, (&v / bias2)?),
+            Corrections::Tensors { inv1, inv2 } => (m.broadcast_mul(inv1)?, v.broadcast_mul(inv2)?),
+        };
+        let update = (m_hat / (v_hat.sqrt()? + self.eps)?)?;
+        var.set(&(var.as_tensor() - (update * self.lr)?)?)?;
+        // Written into the moments' own storage: a captured update must leave every
+        // tensor it outlives where it found it.
+        self.first[i].slice_set(&m, 0, 0)?;
+        self.second[i].slice_set(&v, 0, 0)?;
         Ok(())
     }
 
@@ -323,6 +349,61 @@ mod tests {
             assert_eq!(a, b, "{name}");
         }
         assert_ne!(fused[4].1, init.flatten_all().unwrap().to_vec1::<f32>().unwrap(), "it moved");
+    }
+
+    /// The shards' gradients summed and stepped per variable on two workers give the same
+    /// weights and moments, bit for bit, as the sum on one thread and the sequential step.
+    #[test]
+    fn a_step_from_shards_on_workers_is_the_summed_step() {
+        let dev = Device::Cpu;
+        let make = || {
+            let vars: Vec<(String, Var)> = (0..5)
+                .map(|k| {
+                    let t = Tensor::arange(0f32, 40.0 + k as f32, &dev).unwrap();
+                    let t = ((t * 0.37).unwrap().sin().unwrap() * (k as f64 + 1.0)).unwrap();
+                    (format!("w{k}"), Var::from_tensor(&t).unwrap())
+                })
+                .collect();
+            let opt = Adam::new(vars.clone(), 3e-3).unwrap();
+            (vars, opt)
+        };
+        let (va, mut a) = make();
+        let (vb, mut b) = make();
+        let workers = Workers::new(2).unwrap();
+        for step in 0..4 {
+            // Three shards' losses, each reaching every variable but the last.
+            let stores = |vars: &[(String, Var)]| -> Vec<GradStore> {
+                (0..3)
+                    .map(|s| {
+                        let loss = vars[..4]
+                            .iter()
+                            .map(|(_, v)| {
+                                let k = (s + step) as f64 * 0.3 + 1.0;
+                                (v.as_tensor() * k).unwrap().sqr().unwrap().sum_all().unwrap()
+                            })
+                            .reduce(|x, y| (x + y).unwrap())
+                            .unwrap();
+                        loss.backward().unwrap()
+                    })
+                    .collect()
+            };
+            let summed =
+                super::super::shards::sum_grads(stores(&va), va.iter().map(|(_, v)| v)).unwrap();
+            a.step(&summed).unwrap();
+            b.step_shards(&stores(&vb), &workers).unwrap();
+        }
+        let bits = |t: &Tensor| -> Vec<u32> {
+            t.to_vec1::<f32>().unwrap().iter().map(|x| x.to_bits()).collect()
+        };
+        for i in 0..5 {
+            assert_eq!(bits(va[i].1.as_tensor()), bits(vb[i].1.as_tensor()), "w{i}");
+            assert_eq!(bits(&a.first[i]), bits(&b.first[i]), "m of w{i}");
+            assert_eq!(bits(&a.second[i]), bits(&b.second[i]), "v of w{i}");
+        }
+        assert_eq!(a.steps(), b.steps());
+        // The variable no loss reached has not moved.
+        let untouched = make().0;
+        assert_eq!(bits(vb[4].1.as_tensor()), bits(untouched[4].1.as_tensor()));
     }
 
     #[test]

@@ -8,9 +8,9 @@
 //! Why not candle's own threads: they split each tensor operation, and an update is thousands of
 //! small ones, so they synchronize thousands of times per update (with spin barriers in candle
 //! 0.11), and more threads made an update slower (docs/results.md, "Learner threads"). A shard is
-//! one whole forward and backward pass: two synchronizations per update, and workers that block
-//! rather than spin while the main thread steps the optimizers, so they leave a busy machine's
-//! cores to its actors.
+//! one whole forward and backward pass: a few synchronizations per update (the passes, then the
+//! optimizers' per-variable steps, [`Workers::for_each`]), and workers that block rather than
+//! spin between updates, so they leave a busy machine's cores to its actors.
 
 use crate::replay::Batch;
 use candle_core::backprop::GradStore;
@@ -122,6 +122,11 @@ impl Workers {
         Ok(Self { pool, threads })
     }
 
+    /// No worker threads: everything on the calling thread.
+    pub fn sequential() -> Self {
+        Self { pool: None, threads: 1 }
+    }
+
     /// Threads an update is spread over.
     pub fn threads(&self) -> usize {
         self.threads
@@ -136,6 +141,20 @@ impl Workers {
         match &self.pool {
             Some(pool) if shards.len() > 1 => pool.install(|| shards.par_iter().map(&f).collect()),
             _ => shards.iter().map(f).collect(),
+        }
+    }
+}
+
+impl Workers {
+    /// `f(i)` for every `i` in `0..n`, side by side on the workers, each index a job of its
+    /// own (the jobs are per-variable optimizer steps of very different sizes); stops at the
+    /// first error.
+    pub fn for_each(&self, n: usize, f: impl Fn(usize) -> Result<()> + Sync) -> Result<()> {
+        match &self.pool {
+            Some(pool) if n > 1 => {
+                pool.install(|| (0..n).into_par_iter().with_max_len(1).try_for_each(&f))
+            }
+            _ => (0..n).try_for_each(f),
         }
     }
 }
@@ -248,5 +267,19 @@ mod tests {
         let first: Vec<f32> = workers.map(&shards, |s| Ok(s.rewards.to_vec1::<f32>()?[0])).unwrap();
         assert_eq!(first, vec![0.0, 8.0, 16.0, 24.0]);
         assert!(Workers::new(0).unwrap().threads() >= 1);
+        let hits: Vec<std::sync::atomic::AtomicUsize> =
+            (0..37).map(|_| Default::default()).collect();
+        for w in [workers, Workers::sequential()] {
+            w.for_each(hits.len(), |i| {
+                hits[i].fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                Ok(())
+            })
+            .unwrap();
+        }
+        assert!(hits.iter().all(|h| h.load(std::sync::atomic::Ordering::Relaxed) == 2));
+        let err = Workers::new(2)
+            .unwrap()
+            .for_each(8, |i| if i == 5 { candle_core::bail!("job {i}") } else { Ok(()) });
+        assert!(err.unwrap_err().to_string().contains("job 5"));
     }
 }
