@@ -175,7 +175,7 @@ impl Kernel {
             Self::RoundedF32 => rounded_f32(a, b),
             // SAFETY: available() checked above that the CPU has AVX512F and AVX512-BF16.
             #[cfg(target_arch = "x86_64")]
-            Self::Avx512Bf16 => unsafe { blocked::gemm(a, b, avx512::tile) },
+            Self::Avx512Bf16 => unsafe { blocked::gemm(a, b, avx512::tile, avx512::PACK) },
             #[cfg(not(target_arch = "x86_64"))]
             Self::Avx512Bf16 => unreachable!("checked by available()"),
         }
@@ -235,6 +235,18 @@ mod blocked {
     /// panel `kc × NR` pairs. Unsafe: an implementation may need CPU features the caller
     /// checked.
     pub(super) type TileKernel = unsafe fn(&[u32], &[u32], usize, &mut [f32; MR * NR]);
+
+    /// How operands are packed: [`pack_rows`] and [`pack_panels`]'s signatures and results
+    /// (bit for bit), perhaps with CPU features the caller checked.
+    #[derive(Clone, Copy)]
+    pub(super) struct Pack {
+        pub rows: unsafe fn(&MatRef, usize, usize, usize, &mut [u32]),
+        pub panels: unsafe fn(&MatRef, usize, usize, usize, &mut [u32]),
+    }
+
+    /// The plain-Rust packing, on every CPU (the tests' reference).
+    #[cfg(test)]
+    pub(super) const PORTABLE: Pack = Pack { rows: pack_rows, panels: pack_panels };
 
     #[inline]
     fn pair(lo: f32, hi: f32) -> u32 {
@@ -304,8 +316,8 @@ mod blocked {
     /// `a · b` with bf16 operand pairs and fp32 sums, the tiles computed by `tile`.
     ///
     /// # Safety
-    /// `tile` must be callable on this CPU.
-    pub(super) unsafe fn gemm(a: MatRef, b: MatRef, tile: TileKernel) -> Vec<f32> {
+    /// `tile` and `pack` must be callable on this CPU.
+    pub(super) unsafe fn gemm(a: MatRef, b: MatRef, tile: TileKernel, pack: Pack) -> Vec<f32> {
         let (m, n) = (a.rows, b.cols);
         let pairs = a.cols.div_ceil(2);
         let panels = n.div_ceil(NR);
@@ -315,10 +327,12 @@ mod blocked {
         let mut sums = [0f32; MR * NR];
         for q0 in (0..pairs).step_by(KC) {
             let kc = KC.min(pairs - q0);
-            pack_panels(&b, q0, kc, panels, &mut b_pack);
+            // SAFETY: the caller vouches for `pack`.
+            unsafe { (pack.panels)(&b, q0, kc, panels, &mut b_pack) };
             for r0 in (0..m).step_by(MR) {
                 let mr = MR.min(m - r0);
-                pack_rows(&a, r0, q0, kc, &mut a_pack);
+                // SAFETY: as above.
+                unsafe { (pack.rows)(&a, r0, q0, kc, &mut a_pack) };
                 for p in 0..panels {
                     // SAFETY: the caller vouches for `tile`; the slices hold MR·kc and kc·NR
                     // pairs.
@@ -361,10 +375,209 @@ mod blocked {
 
 #[cfg(target_arch = "x86_64")]
 mod avx512 {
-    //! The tile kernel on `vdpbf16ps`.
+    //! The tile kernel on `vdpbf16ps`, and the packing 16 values at a time.
+    //!
+    //! The packing was as costly as the products (32 % of a bf16 update in `perf` against the
+    //! tile's 27 %: one rounding and one bounds-checked load per element). The vector packers
+    //! round with the same integer arithmetic as [`super::to_bf16_bits`] (not `vcvtne2ps2bf16`,
+    //! which reads subnormal inputs as zero), so they pack the same bits as the portable ones.
 
-    use super::blocked::{MR, NR};
+    use super::MatRef;
+    use super::blocked::{MR, NR, Pack, pack_panels, pack_rows};
     use std::arch::x86_64::*;
+
+    /// The packing with AVX-512F.
+    pub(super) const PACK: Pack = Pack { rows: pack_rows_avx512, panels: pack_panels_avx512 };
+
+    /// bf16 bits of 16 floats, each in the low half of its 32-bit lane: round to nearest even,
+    /// NaN to a quiet NaN, as [`super::to_bf16_bits`].
+    #[inline]
+    #[target_feature(enable = "avx512f")]
+    fn bf16_lanes(x: __m512) -> __m512i {
+        let bits = _mm512_castps_si512(x);
+        let abs = _mm512_and_si512(bits, _mm512_set1_epi32(0x7fff_ffff));
+        let nan = _mm512_cmpgt_epu32_mask(abs, _mm512_set1_epi32(0x7f80_0000));
+        let high = _mm512_srli_epi32::<16>(bits);
+        let odd = _mm512_and_si512(high, _mm512_set1_epi32(1));
+        let rounded = _mm512_srli_epi32::<16>(_mm512_add_epi32(
+            _mm512_add_epi32(bits, _mm512_set1_epi32(0x7fff)),
+            odd,
+        ));
+        let quiet = _mm512_or_si512(high, _mm512_set1_epi32(0x40));
+        _mm512_mask_blend_epi32(nan, rounded, quiet)
+    }
+
+    /// Lanes `0..n` set (n ≤ 16).
+    #[inline]
+    fn first(n: usize) -> __mmask16 {
+        if n >= 16 { 0xffff } else { (1u16 << n) - 1 }
+    }
+
+    /// `values[..n]` (n ≤ 32, zero past it) as 16 bf16 pairs: pair q holds values 2q and
+    /// 2q + 1, the layout of [`super::blocked::pack_rows`].
+    ///
+    /// # Safety
+    /// `values` must hold `n` readable floats.
+    #[inline]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn pairs_of(values: *const f32, n: usize) -> __m512i {
+        // SAFETY: masked loads read only lanes below `n`, which the caller vouches for.
+        let (lo, hi) = unsafe {
+            (
+                _mm512_maskz_loadu_ps(first(n), values),
+                _mm512_maskz_loadu_ps(first(n.saturating_sub(16)), values.add(16.min(n))),
+            )
+        };
+        // Each 32-bit lane's low half is a bf16; truncating to 16 bits and concatenating puts
+        // values 2q and 2q + 1 side by side in 32-bit pair q.
+        let lo = _mm512_cvtepi32_epi16(bf16_lanes(lo));
+        let hi = _mm512_cvtepi32_epi16(bf16_lanes(hi));
+        _mm512_inserti64x4::<1>(_mm512_castsi256_si512(lo), hi)
+    }
+
+    /// [`pack_rows`], a contiguous row 32 values at a time.
+    ///
+    /// # Safety
+    /// The CPU must have AVX-512F.
+    #[target_feature(enable = "avx512f")]
+    unsafe fn pack_rows_avx512(a: &MatRef, r0: usize, q0: usize, kc: usize, out: &mut [u32]) {
+        if a.contiguous_row(0).is_none() {
+            if a.row_stride == 1 {
+                // SAFETY: the caller vouches for AVX-512F.
+                return unsafe { pack_rows_of_columns(a, r0, q0, kc, out) };
+            }
+            return pack_rows(a, r0, q0, kc, out);
+        }
+        for (r, row) in out[..MR * kc].chunks_exact_mut(kc).enumerate() {
+            let Some(values) = (r0 + r < a.rows).then(|| a.contiguous_row(r0 + r)).flatten() else {
+                row.fill(0);
+                continue;
+            };
+            let seg = &values[(2 * q0).min(a.cols)..(2 * (q0 + kc)).min(a.cols)];
+            for (c, chunk) in row.chunks_mut(16).enumerate() {
+                let start = (32 * c).min(seg.len());
+                let n = (seg.len() - start).min(32);
+                // SAFETY: `seg[start..start + n]` is in bounds; the store writes `chunk.len()`
+                // ≤ 16 lanes into `chunk`.
+                unsafe {
+                    let pairs = pairs_of(seg.as_ptr().add(start), n);
+                    _mm512_mask_storeu_epi32(chunk.as_mut_ptr().cast(), first(chunk.len()), pairs);
+                }
+            }
+        }
+    }
+
+    /// [`pack_rows`] for a transposed view (`row_stride` 1: `xᵀ` in a weight gradient
+    /// `xᵀ·dy`), whose `MR` rows at pair q are adjacent values of two rows of memory.
+    ///
+    /// # Safety
+    /// The CPU must have AVX-512F.
+    #[target_feature(enable = "avx512f")]
+    unsafe fn pack_rows_of_columns(a: &MatRef, r0: usize, q0: usize, kc: usize, out: &mut [u32]) {
+        let mask = first(MR.min(a.rows.saturating_sub(r0)));
+        let mut lanes = [0u32; 16];
+        for q in 0..kc {
+            let j = 2 * (q0 + q);
+            let pairs = if j >= a.cols {
+                _mm512_setzero_si512()
+            } else {
+                let at = |j: usize| &a.data[r0 + j * a.col_stride..];
+                // SAFETY: the masked loads read the rows below `a.rows`, in `a.data` at
+                // column j (and j + 1 when it exists).
+                unsafe {
+                    let lo = bf16_lanes(_mm512_maskz_loadu_ps(mask, at(j).as_ptr()));
+                    let hi = if j + 1 < a.cols {
+                        bf16_lanes(_mm512_maskz_loadu_ps(mask, at(j + 1).as_ptr()))
+                    } else {
+                        _mm512_setzero_si512()
+                    };
+                    _mm512_or_si512(lo, _mm512_slli_epi32::<16>(hi))
+                }
+            };
+            // SAFETY: 16 lanes into a 16-lane scratch.
+            unsafe { _mm512_storeu_si512(lanes.as_mut_ptr().cast(), pairs) };
+            for (r, &pair) in lanes.iter().take(MR).enumerate() {
+                out[r * kc + q] = pair;
+            }
+        }
+    }
+
+    /// [`pack_panels`]: for contiguous rows two rows' values interleaved 16 at a time; for a
+    /// transposed view (`row_stride` 1: the weights `Wᵀ` of `x·Wᵀ`, whose pairs are adjacent
+    /// in a row of `W`) each column's pairs 16 at a time, then scattered down its lane.
+    ///
+    /// # Safety
+    /// The CPU must have AVX-512F.
+    #[target_feature(enable = "avx512f")]
+    unsafe fn pack_panels_avx512(b: &MatRef, q0: usize, kc: usize, panels: usize, out: &mut [u32]) {
+        if b.contiguous_row(0).is_some() {
+            for p in 0..panels {
+                let (j0, cols) = (p * NR, NR.min(b.cols - p * NR));
+                let block = &mut out[p * kc * NR..(p + 1) * kc * NR];
+                for (q, lanes) in block.chunks_exact_mut(NR).enumerate() {
+                    let i = 2 * (q0 + q);
+                    if i >= b.rows {
+                        lanes.fill(0);
+                        continue;
+                    }
+                    let lo = &b.contiguous_row(i).expect("checked above")[j0..j0 + cols];
+                    let hi = (i + 1 < b.rows)
+                        .then(|| &b.contiguous_row(i + 1).expect("checked above")[j0..j0 + cols]);
+                    for (h, half) in lanes.chunks_exact_mut(16).enumerate() {
+                        let start = (16 * h).min(cols);
+                        let mask = first(cols - start);
+                        // SAFETY: masked loads read lanes below `cols - start` of rows that
+                        // hold `cols` values from `j0`; the store writes 16 lanes into `half`.
+                        unsafe {
+                            let l = bf16_lanes(_mm512_maskz_loadu_ps(mask, lo.as_ptr().add(start)));
+                            let h = match hi {
+                                Some(hi) => {
+                                    bf16_lanes(_mm512_maskz_loadu_ps(mask, hi.as_ptr().add(start)))
+                                }
+                                None => _mm512_setzero_si512(),
+                            };
+                            let pairs = _mm512_or_si512(l, _mm512_slli_epi32::<16>(h));
+                            _mm512_storeu_si512(half.as_mut_ptr().cast(), pairs);
+                        }
+                    }
+                }
+            }
+            return;
+        }
+        if b.row_stride != 1 {
+            return pack_panels(b, q0, kc, panels, out);
+        }
+        // Column j of `b` is contiguous: values (2q, j) and (2q + 1, j) are adjacent.
+        let lo_row = (2 * q0).min(b.rows);
+        let n = (2 * (q0 + kc)).min(b.rows) - lo_row;
+        let mut column = [0u32; 16];
+        for p in 0..panels {
+            let (j0, cols) = (p * NR, NR.min(b.cols - p * NR));
+            let block = &mut out[p * kc * NR..(p + 1) * kc * NR];
+            for jj in 0..NR {
+                if jj >= cols {
+                    for q in 0..kc {
+                        block[q * NR + jj] = 0;
+                    }
+                    continue;
+                }
+                let start = (j0 + jj) * b.col_stride + lo_row;
+                let values = &b.data[start..start + n];
+                for c in 0..kc.div_ceil(16) {
+                    let from = (32 * c).min(n);
+                    // SAFETY: `values[from..from + m]` is in bounds (m ≤ 32); the store fills
+                    // the 16-pair scratch.
+                    unsafe {
+                        let pairs = pairs_of(values.as_ptr().add(from), (n - from).min(32));
+                        _mm512_storeu_si512(column.as_mut_ptr().cast(), pairs);
+                    }
+                    for (k, &pair) in column.iter().enumerate().take(kc - 16 * c) {
+                        block[(16 * c + k) * NR + jj] = pair;
+                    }
+                }
+            }
+        }
+    }
 
     /// `tile = a_pack · panel` ([`super::blocked::TileKernel`]) with AVX512-BF16.
     ///
@@ -558,13 +771,81 @@ mod tests {
             for av in views(&a, &at, m, k) {
                 for bv in views(&b, &bt, k, n) {
                     // SAFETY: the scalar tile needs no CPU feature.
-                    let blocked = unsafe { blocked::gemm(av, bv, blocked::scalar_tile) };
+                    let blocked =
+                        unsafe { blocked::gemm(av, bv, blocked::scalar_tile, blocked::PORTABLE) };
                     let strided = Kernel::RoundedF32.gemm(av, bv);
                     for ((x, y), z) in blocked.iter().zip(&portable).zip(&strided) {
                         let tol = 1e-5 * (k as f32).sqrt();
                         assert!((x - y).abs() <= tol, "blocked {m}x{k}x{n}: {x} vs {y}");
                         assert!((z - y).abs() <= tol, "strided {m}x{k}x{n}: {z} vs {y}");
                     }
+                }
+            }
+        }
+    }
+
+    /// Where the CPU has AVX-512F, the vector packers pack the same bits as the portable ones:
+    /// row-major and transposed operands, across the tile, panel and block edges, odd shared
+    /// dimensions, NaN, infinities, subnormals and ties.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn the_vector_packing_is_the_portable_packing() {
+        if !std::is_x86_feature_detected!("avx512f") {
+            eprintln!("this CPU has no AVX-512F; the vector packing is not checked");
+            return;
+        }
+        let specials = [
+            f32::NAN,
+            -f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            1e-40,
+            -1e-45,
+            1.0 + 2f32.powi(-8),
+            1.0 + 3.0 * 2f32.powi(-8),
+            f32::MAX,
+            0.0,
+            -0.0,
+        ];
+        for (rows, cols) in [(1, 1), (7, 5), (13, 33), (40, 64), (513, 70), (6, 1025)] {
+            let mut x = random(rows, cols, 11);
+            for (v, s) in x.iter_mut().step_by(7).zip(specials.iter().cycle()) {
+                *v = *s;
+            }
+            let xt: Vec<f32> = (0..cols)
+                .flat_map(|j| (0..rows).map(|i| x[i * cols + j]).collect::<Vec<_>>())
+                .collect();
+            let views = [
+                MatRef::row_major(&x, rows, cols),
+                MatRef { data: &xt, rows, cols, row_stride: 1, col_stride: rows },
+            ];
+            for v in views {
+                let pairs = cols.div_ceil(2);
+                for q0 in (0..pairs).step_by(256) {
+                    let kc = 256.min(pairs - q0);
+                    for r0 in (0..rows).step_by(6) {
+                        let (mut a, mut b) = (vec![7u32; 6 * kc], vec![9u32; 6 * kc]);
+                        // SAFETY: AVX-512F checked above; the portable packer needs nothing.
+                        unsafe {
+                            (blocked::PORTABLE.rows)(&v, r0, q0, kc, &mut a);
+                            (avx512::PACK.rows)(&v, r0, q0, kc, &mut b);
+                        }
+                        assert_eq!(a, b, "rows {rows}x{cols} r0 {r0} q0 {q0}");
+                    }
+                }
+                // As panels: the same matrix as the right operand (its rows are the pairs').
+                let pairs = rows.div_ceil(2);
+                let panels = cols.div_ceil(32);
+                for q0 in (0..pairs).step_by(256) {
+                    let kc = 256.min(pairs - q0);
+                    let (mut a, mut b) =
+                        (vec![7u32; kc * panels * 32], vec![9u32; kc * panels * 32]);
+                    // SAFETY: as above.
+                    unsafe {
+                        (blocked::PORTABLE.panels)(&v, q0, kc, panels, &mut a);
+                        (avx512::PACK.panels)(&v, q0, kc, panels, &mut b);
+                    }
+                    assert_eq!(a, b, "panels {rows}x{cols} q0 {q0}");
                 }
             }
         }
