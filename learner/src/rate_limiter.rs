@@ -124,16 +124,12 @@ impl RateLimiter {
         if ratio == s.ratio || s.ingest_stopped {
             return;
         }
-        if s.inserted >= self.learning_starts {
-            let allowed = Self::allowed_at(&s, s.inserted);
-            s.base = Base { start: s.inserted + 1, updates: allowed };
-        }
-        s.ratio = ratio;
-        // Either side may now go on: the trainer if the new ratio allows more, ingestion if
-        // it allows fewer.
-        self.trainer_wakeup.notify_all();
-        let u = s.updates;
-        self.updates_tx.send_replace(u);
+        let base = if s.inserted >= self.learning_starts {
+            Base { start: s.inserted + 1, updates: Self::allowed_at(&s, s.inserted) }
+        } else {
+            s.base
+        };
+        self.take_over(&mut s, ratio, base);
     }
 
     /// A resumed run's ratio: the updates done so far are all that is allowed until `start`
@@ -141,9 +137,17 @@ impl RateLimiter {
     /// way, where [`RateLimiter::restore`]'s count cannot be read back through one ratio.
     pub fn continue_at(&self, ratio: f64, start: u64) {
         let mut s = self.state.lock().expect("rate limiter lock");
-        s.base = Base { start, updates: s.updates };
+        let base = Base { start, updates: s.updates };
+        self.take_over(&mut s, ratio, base);
+    }
+
+    /// `ratio` counts from `base` on; wakes both sides, since either may now go on (the
+    /// trainer if the new ratio allows more, ingestion if it allows fewer).
+    fn take_over(&self, s: &mut State, ratio: f64, base: Base) {
+        s.base = base;
         s.ratio = ratio;
         self.trainer_wakeup.notify_all();
+        self.updates_tx.send_replace(s.updates);
     }
 
     /// The current replay ratio.

@@ -92,19 +92,15 @@ impl Adam {
     /// One Adam step from the gradients of several backward passes (the shards of one
     /// minibatch, [`super::shards`]) added up, each variable's sum and step as one job on
     /// `workers`: the variables are independent, so the step needs no second core's worth
-    /// of waiting on the main thread. Each sum is in shard order, as
+    /// of waiting on the main thread. Each sum is [`super::shards::grad_sum`], as
     /// [`super::shards::sum_grads`] adds them, so the result is the same bit for bit.
     pub fn step_shards(&mut self, stores: &[GradStore], workers: &Workers) -> Result<()> {
         let corrections = self.count_step_corrections();
         workers.for_each(self.vars.len(), |i| {
-            let var = self.vars[i].1.as_tensor();
-            let mut parts = stores.iter().filter_map(|store| store.get(var));
-            let Some(first) = parts.next() else { return Ok(()) };
-            let mut g = first.clone();
-            for part in parts {
-                g = (g + part)?;
+            match super::shards::grad_sum(stores, self.vars[i].1.as_tensor())? {
+                Some(g) => self.step_var(i, &g, corrections),
+                None => Ok(()),
             }
-            self.step_var(i, &g, corrections)
         })
     }
 

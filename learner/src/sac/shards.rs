@@ -168,19 +168,28 @@ pub fn sum_grads<'a>(
     if stores.is_empty() {
         candle_core::bail!("no gradients to add up");
     }
-    let rest = stores.split_off(1);
-    let mut total = stores.pop().expect("one store");
-    for store in rest {
-        for var in vars.clone() {
-            let Some(g) = store.get(var.as_tensor()) else { continue };
-            let sum = match total.get(var.as_tensor()) {
-                Some(t) => (t + g)?,
-                None => g.clone(),
-            };
+    let sums = vars
+        .map(|var| Ok((var, grad_sum(&stores, var.as_tensor())?)))
+        .collect::<Result<Vec<_>>>()?;
+    let mut total = stores.swap_remove(0);
+    for (var, sum) in sums {
+        if let Some(sum) = sum {
             total.insert(var.as_tensor(), sum);
         }
     }
     Ok(total)
+}
+
+/// The shards' gradients of one variable added up in shard order (the same sum, bit for bit,
+/// whichever thread computes it); `None` when no shard reached the variable.
+pub fn grad_sum(stores: &[GradStore], var: &Tensor) -> Result<Option<Tensor>> {
+    let mut parts = stores.iter().filter_map(|store| store.get(var));
+    let Some(first) = parts.next() else { return Ok(None) };
+    let mut sum = first.clone();
+    for part in parts {
+        sum = (sum + part)?;
+    }
+    Ok(Some(sum))
 }
 
 #[cfg(test)]
