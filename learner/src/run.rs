@@ -95,7 +95,24 @@ pub async fn run(
 
     let device = opts.device.clone();
     tracing::info!(device = %crate::device::name(&device), "learner device");
-    let nets = SacNetworks::new(&cfg, cfg.run.seed, &device)?;
+    // `auto` is timed here, before the networks exist; the run's config keeps `auto`, so a
+    // resumed run chooses again on the machine it resumes on.
+    let (precision, choice) = crate::bench::precision::resolve(&cfg, &device)?;
+    match &choice {
+        Some(c) => tracing::info!(
+            %precision,
+            reason = c.reason,
+            fp32_updates_per_s = c.fp32_updates_per_s,
+            bf16_updates_per_s = c.bf16_updates_per_s,
+            "learner matrix products: precision auto chose"
+        ),
+        None => tracing::info!(%precision, "learner matrix products"),
+    }
+    let nets = {
+        let mut c = cfg.clone();
+        c.learner.precision = precision;
+        SacNetworks::new(&c, cfg.run.seed, &device)?
+    };
     let mut learner = SacLearner::new(nets, cfg.sac.clone(), device, cfg.run.seed ^ 0x0005_ac00)?
         .with_threads(cfg.learner.threads)?
         .with_cuda_graphs(cfg.learner.cuda_graph);

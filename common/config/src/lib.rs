@@ -243,8 +243,12 @@ pub struct LearnerConfig {
     /// (docs/results.md, "Learner threads" and "Two threads by default").
     pub threads: usize,
     /// The arithmetic of the networks' matrix products in training: fp32, or bf16 operands
-    /// with fp32 sums (master weights, Adam moments and losses stay fp32). Actors always act
-    /// in fp32.
+    /// with fp32 sums (master weights, Adam moments and losses stay fp32), or `auto` (the
+    /// default): the learner times both at its start and trains in bf16 only where bf16 was
+    /// faster (a Zen 4 with AVX512-BF16 reached the skill in 105 s against 131 s; a Zen 5,
+    /// with twice as wide fp32 FMAs, runs bf16 updates slower than fp32: docs/results.md,
+    /// "bf16 mixed precision"); fp32 untimed on CPUs without AVX512-BF16 and on GPUs.
+    /// Actors always act in fp32.
     pub precision: Precision,
     /// On a CUDA device (`--device cuda`), capture the update once as a CUDA graph and
     /// replay it, instead of launching its kernels one by one. Off by default until measured
@@ -287,7 +291,7 @@ impl Default for LearnerConfig {
             max_steps_ahead: 2_000,
             transitions_in_flight: 128,
             threads: 2,
-            precision: Precision::Fp32,
+            precision: Precision::Auto,
             cuda_graph: false,
             eval_every_updates: 2_000,
             eval_episodes: 10,
@@ -309,11 +313,14 @@ fn is_false(b: &bool) -> bool {
 #[serde(rename_all = "lowercase")]
 pub enum Precision {
     /// fp32 operands and sums.
-    #[default]
     Fp32,
     /// bfloat16 operands (rounded to nearest even), fp32 sums: twice the multiply rate on CPUs
     /// with AVX512-BF16, the same arithmetic at the fp32 rate elsewhere.
     Bf16,
+    /// Chosen where the learner runs: bf16 where it timed bf16 updates faster than fp32,
+    /// fp32 elsewhere (`dvnav_learner::bench::precision`).
+    #[default]
+    Auto,
 }
 
 impl std::str::FromStr for Precision {
@@ -322,7 +329,8 @@ impl std::str::FromStr for Precision {
         match s {
             "fp32" => Ok(Precision::Fp32),
             "bf16" => Ok(Precision::Bf16),
-            other => Err(format!("unknown precision `{other}`: expected `fp32` or `bf16`")),
+            "auto" => Ok(Precision::Auto),
+            other => Err(format!("unknown precision `{other}`: expected `fp32`, `bf16` or `auto`")),
         }
     }
 }
@@ -332,6 +340,7 @@ impl fmt::Display for Precision {
         f.write_str(match self {
             Precision::Fp32 => "fp32",
             Precision::Bf16 => "bf16",
+            Precision::Auto => "auto",
         })
     }
 }
@@ -961,6 +970,20 @@ mod tests {
         assert_eq!(Config::from_toml_str(default).unwrap(), Config::default());
         let paper = Config::from_toml_str(include_str!("../../../configs/paper.toml")).unwrap();
         assert_eq!((paper.sac.batch_size, paper.sac.updates_per_env_step), (256, 1.0));
+    }
+
+    #[test]
+    fn the_default_precision_is_auto_and_each_precision_parses() {
+        let cfg = Config::default();
+        assert_eq!(cfg.learner.precision, Precision::Auto);
+        for p in [Precision::Fp32, Precision::Bf16, Precision::Auto] {
+            assert_eq!(p.to_string().parse::<Precision>(), Ok(p));
+            let text = format!("[learner]\nprecision = \"{p}\"\n");
+            assert_eq!(Config::from_toml_str(&text).unwrap().learner.precision, p);
+        }
+        let err = "fp16".parse::<Precision>().unwrap_err();
+        assert!(err.contains("`fp16`") && err.contains("`auto`"), "{err}");
+        assert!(Config::from_toml_str("[learner]\nprecision = \"fp16\"\n").is_err());
     }
 
     #[test]

@@ -1,4 +1,5 @@
-//! bf16 mixed precision for the networks' matrix products (`learner.precision = "bf16"`).
+//! bf16 mixed precision for the networks' matrix products (`learner.precision = "bf16"`, or
+//! `"auto"`, the default, where the learner measured bf16 faster).
 //!
 //! [`matmul`] rounds both operands to bfloat16 (round to nearest even) and sums their products
 //! in fp32, in forward and in backward (dA = G·Bᵀ and dB = Aᵀ·G are bf16 products again).
@@ -22,10 +23,12 @@ use candle_core::{CpuStorage, CustomOp2, DType, Layout, Result, Shape, Tensor};
 pub use dvnav_config::Precision;
 
 /// `a · b` for 2-D `a` `(m, k)` and `b` `(k, n)` in the given precision; gradients flow to
-/// both operands in the same precision.
+/// both operands in the same precision. `auto` is the learner's to resolve by measuring
+/// before it builds its networks (`dvnav_learner::bench::precision`); a product given `auto`
+/// itself runs in fp32.
 pub fn matmul(a: &Tensor, b: &Tensor, precision: Precision) -> Result<Tensor> {
     match precision {
-        Precision::Fp32 => a.matmul(b),
+        Precision::Fp32 | Precision::Auto => a.matmul(b),
         Precision::Bf16 if a.device().is_cpu() => {
             if a.dtype() != DType::F32 || b.dtype() != DType::F32 {
                 candle_core::bail!("bf16 matmul: f32 tensors only, got {:?}", a.dtype());

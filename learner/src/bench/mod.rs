@@ -4,6 +4,7 @@
 
 pub mod flops;
 pub mod peak;
+pub mod precision;
 
 use crate::replay::{Batch, ObsCodec, ReplayBuffer, Returns};
 use crate::sac::{SacLearner, SacNetworks};
@@ -47,6 +48,9 @@ pub struct LearnerBench {
     pub cpu_bf16: bool,
     /// The update's matrix-product precision (`learner.precision`): `fp32` or `bf16`.
     pub precision: String,
+    /// How `auto` chose `precision`, when it was asked to (`dvnav bench learner --precision
+    /// auto`, or the config's `auto`); `None` for a precision given outright.
+    pub precision_choice: Option<precision::PrecisionChoice>,
     /// The kernel bf16 products run on here: `avx512-bf16`, or `rounded-fp32` (fp32 speed).
     pub bf16_kernel: String,
     /// Policy inference latency at batch 1 (ms, mean).
@@ -191,6 +195,7 @@ pub fn sac_updates(cfg: &Config, run: &UpdateBench, dev: &Device) -> anyhow::Res
         gemm_peak_gflops_bf16: peak_bf16,
         cpu_bf16: dvnav_nav::bf16::Kernel::Avx512Bf16.available(),
         precision: cfg.learner.precision.to_string(),
+        precision_choice: None,
         bf16_kernel: dvnav_nav::bf16::Kernel::detect().name().to_string(),
         inference_ms_batch1: latency(1)?,
         inference_ms_batch64: latency(64)?,

@@ -101,7 +101,8 @@ pub struct SacNetworks<P = Actor, Q = Critic> {
 
 impl SacNetworks {
     /// Fresh navigation networks, deterministically initialised from `seed`; targets start as
-    /// copies. Their matrix products run in `learner.precision`.
+    /// copies. Their matrix products run in `learner.precision` (`auto` in fp32: the learner
+    /// resolves it by measuring first, [`crate::bench::precision`]).
     pub fn new(cfg: &Config, seed: u64, dev: &Device) -> Result<Self> {
         let layout = cfg.obs_layout();
         let (n, p) = (&cfg.network, cfg.learner.precision);
