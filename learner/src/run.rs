@@ -99,13 +99,7 @@ pub async fn run(
     // resumed run chooses again on the machine it resumes on.
     let (precision, choice) = crate::bench::precision::resolve(&cfg, &device)?;
     match &choice {
-        Some(c) => tracing::info!(
-            %precision,
-            reason = c.reason,
-            fp32_updates_per_s = c.fp32_updates_per_s,
-            bf16_updates_per_s = c.bf16_updates_per_s,
-            "learner matrix products: precision auto chose"
-        ),
+        Some(c) => tracing::info!(choice = %c, "learner matrix products: precision auto chose"),
         None => tracing::info!(%precision, "learner matrix products"),
     }
     let nets = {

@@ -90,10 +90,11 @@ enum BenchWhat {
         #[arg(long)]
         keep_denormals: bool,
         /// The update's matrix products: `fp32`, `bf16` operands with fp32 sums, or `auto`
-        /// (bf16 on a CPU with AVX512-BF16, else fp32; the JSON's `precision` says which ran)
-        /// (default: the config's `learner.precision`, `auto`). bf16 is faster only on CPUs
-        /// with AVX512-BF16 (`cpu_bf16` in the JSON); elsewhere it computes the same numbers
-        /// at fp32 speed.
+        /// (both timed first at this batch and threads, bf16 only if >= 5 % faster; the
+        /// JSON's `precision` and `precision_choice` say which ran and why) (default: the
+        /// config's `learner.precision`, `auto`). bf16 can be faster only on CPUs with
+        /// AVX512-BF16 (`cpu_bf16` in the JSON); elsewhere it computes the same numbers at
+        /// fp32 speed.
         /// PyTorch with --torch runs fp32 and bf16 autocast whatever this says.
         #[arg(long)]
         precision: Option<dvnav_config::Precision>,
@@ -387,16 +388,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
             };
             cfg.learner.precision = chosen;
             if let (Some(c), false) = (&choice, json) {
-                println!(
-                    "precision auto: {} ({}{})",
-                    c.precision,
-                    c.reason,
-                    match (c.fp32_updates_per_s, c.bf16_updates_per_s) {
-                        (Some(f), Some(b)) =>
-                            format!(": fp32 {f:.1} against bf16 {b:.1} updates/s"),
-                        _ => String::new(),
-                    }
-                );
+                println!("precision auto: {c}");
             }
             let mut r = dvnav_learner::bench::sac_updates(&cfg, &run, &dev)?;
             r.precision_choice = choice;

@@ -64,6 +64,17 @@ impl PrecisionChoice {
     }
 }
 
+/// `fp32 (timed: fp32 69.5 against bf16 67.9 updates/s)`, or `fp32 (no-avx512-bf16)`.
+impl std::fmt::Display for PrecisionChoice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} ({}", self.precision, self.reason)?;
+        if let (Some(fp32), Some(bf16)) = (self.fp32_updates_per_s, self.bf16_updates_per_s) {
+            write!(f, ": fp32 {fp32:.1} against bf16 {bf16:.1} updates/s")?;
+        }
+        f.write_str(")")
+    }
+}
+
 /// The precision `cfg.learner.precision` asks for on `dev`: fp32 and bf16 as given (`None`),
 /// `auto` chosen by [`choose`].
 pub fn resolve(cfg: &Config, dev: &Device) -> anyhow::Result<(Precision, Option<PrecisionChoice>)> {
@@ -131,6 +142,8 @@ mod tests {
         let c = PrecisionChoice::from_rates(40.0, 42.0);
         assert_eq!((c.precision, c.reason), (Precision::Bf16, "timed"));
         assert_eq!((c.fp32_updates_per_s, c.bf16_updates_per_s), (Some(40.0), Some(42.0)));
+        assert_eq!(c.to_string(), "bf16 (timed: fp32 40.0 against bf16 42.0 updates/s)");
+        assert_eq!(PrecisionChoice::untimed("not-a-cpu").to_string(), "fp32 (not-a-cpu)");
     }
 
     #[test]
