@@ -625,10 +625,22 @@ async fn the_server_plans_on_a_map_for_a_robots_goal() {
     assert!(r.following_route && !r.blocked && r.replans == 0, "{r:?}");
     assert!(r.subgoal_y > 1.0 && r.subgoal_x < 2.5, "heads for the door: {r:?}");
     assert!(r.remaining_m > 4.0, "{r:?}");
-    // Far off its path, the server replans itself: no replan is asked of the robot.
+    // Far off its path, the server replans itself, on its planner thread: no replan is asked
+    // of the robot, and this call does not wait for it.
     let act = ActRequest { robot_id: "r".into(), pose: p(0.3, 0.3), ..request(2) };
-    let r = client.act(act).await.unwrap().into_inner();
-    assert!(r.replans == 1 && !r.replan_wanted && !r.blocked, "{r:?}");
+    let r = client.act(act.clone()).await.unwrap().into_inner();
+    assert!(r.replanning && r.replans == 0 && !r.replan_wanted && !r.blocked, "{r:?}");
+    // A later call takes up the new path.
+    let mut later = r;
+    for _ in 0..100 {
+        tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+        later = client.act(act.clone()).await.unwrap().into_inner();
+        if later.replans > 0 {
+            break;
+        }
+    }
+    let r = later;
+    assert!(r.replans == 1 && !r.replanning && !r.replan_wanted && !r.blocked, "{r:?}");
     assert!(r.remaining_m > route.length_m, "planned again from farther away: {r:?}");
 
     // Off the map, inside a wall, not a number: refused naming the point.
@@ -660,8 +672,10 @@ fn the_serve_bench_routes_and_replans_its_robots() {
     assert!(calls >= 20, "{r}");
     let replans = r["route_replans"].as_u64().unwrap();
     assert!(replans >= 2 && replans <= calls, "{r}");
-    // One replan per straying call, each counted once.
-    assert_eq!(r["route_replan_calls"].as_u64().unwrap(), replans, "{r}");
+    // One replan per straying call, each counted once; a replan asked in a robot's last timed
+    // call may land after the timing ends.
+    let asked = r["route_replan_calls"].as_u64().unwrap();
+    assert!(replans <= asked && asked <= replans + 2, "{r}");
     assert!(
         r["route_replan_max_ms"].as_f64().unwrap() >= r["route_replan_p50_ms"].as_f64().unwrap()
     );

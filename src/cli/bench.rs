@@ -111,8 +111,9 @@ enum BenchWhat {
         #[arg(long)]
         json: bool,
     },
-    /// Path planning time (`dvnav_sim::planner`, one thread) for random starts and goals
-    /// anywhere in a room that the robot can drive between: p50, p99 and max per plan.
+    /// Path planning time (`dvnav_sim::planner`, one thread, on the room's planning raster)
+    /// for random starts and goals anywhere in a room that the robot can drive between
+    /// (seed 0): p50, p99 and max per plan, and the raster's build time.
     Plan {
         /// The room: a built-in name, a room file or an occupancy-grid map.
         #[arg(long, default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/maps/willow.yaml"))]
@@ -456,10 +457,12 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
                 println!("{r}");
             } else {
                 println!(
-                    "planning in {} ({} cells of {} m), radius {radius} m: p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms over {plans} plans (mean path {:.1} m, {} failed)",
+                    "planning in {} ({}² cells of {:.4} m, built in {:.0} ms, {:.0} m² reachable), radius {radius} m: p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms over {plans} plans (mean path {:.1} m, {} failed)",
                     r["room"].as_str().unwrap_or("?"),
                     r["cells_per_side"],
-                    r["cell_m"],
+                    r["cell_m"].as_f64().unwrap_or(0.0),
+                    r["map_build_ms"].as_f64().unwrap_or(0.0),
+                    r["reachable_m2"].as_f64().unwrap_or(0.0),
                     r["p50_ms"].as_f64().unwrap_or(0.0),
                     r["p99_ms"].as_f64().unwrap_or(0.0),
                     r["max_ms"].as_f64().unwrap_or(0.0),
@@ -562,26 +565,34 @@ fn bench_env(steps: usize, room: &str) -> anyhow::Result<serde_json::Value> {
     }))
 }
 
-/// Times [`dvnav_sim::planner::plan`] between random reachable starts and goals (drawn as an
-/// environment draws its tasks, at least 1 m apart, any distance).
+/// Times [`dvnav_sim::planner::plan`] between random starts and goals anywhere in the room
+/// that the robot can drive between (two passable cells of one component of the planner's own
+/// raster, at least 1 m apart, drawn uniformly over the passable cells, seed 0).
 fn bench_plan(room: &str, radius: f64, plans: usize) -> anyhow::Result<serde_json::Value> {
+    use dvnav_sim::Room;
     use dvnav_sim::planner::{PlannerConfig, plan};
-    use dvnav_sim::{EnvConfig, Footprint, NavEnv, Room};
+    use rand::SeedableRng;
     use std::time::Instant;
     anyhow::ensure!(plans > 0, "--plans must be at least 1");
     anyhow::ensure!(radius > 0.0 && radius.is_finite(), "--radius must be above 0 m");
-    let room = Room::load(room)?
+    let room: std::sync::Arc<Room> = Room::load(room)?
         .into_iter()
         .next()
         .ok_or_else(|| anyhow::anyhow!("no room to plan in"))?;
-    let map = room.clearance_map();
-    let mut env =
-        NavEnv::with_footprint(room.clone(), &EnvConfig::default(), 1, Footprint::circle(radius));
+    let t = Instant::now();
+    let map = room.planning_map();
+    let build_ms = t.elapsed().as_secs_f64() * 1e3;
+    let reach = map.reach(radius);
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(0);
     let cfg = PlannerConfig::default();
+    let pairs = reach.random_connected_pairs(&mut rng, plans, 1.0).ok_or_else(|| {
+        anyhow::anyhow!(
+            "no two points 1 m apart that a robot of radius {radius} m can drive between in {}",
+            room.name()
+        )
+    })?;
     let (mut times, mut lengths, mut failed) = (Vec::with_capacity(plans), Vec::new(), 0usize);
-    for _ in 0..plans {
-        env.reset();
-        let (a, b) = (env.start().position(), env.goal());
+    for (a, b) in pairs {
         let t = Instant::now();
         let out = plan(map, radius, a, b, &cfg);
         times.push(t.elapsed().as_secs_f64() * 1e3);
@@ -597,6 +608,12 @@ fn bench_plan(room: &str, radius: f64, plans: usize) -> anyhow::Result<serde_jso
         "radius_m": radius,
         "cells_per_side": map.raster().n,
         "cell_m": map.raster().res,
+        "map_build_ms": build_ms,
+        // Where the robot can go from the largest component's cells, on this raster and on
+        // the coarser one that tasks are drawn on (conservative cells narrow every door).
+        "reachable_m2": reach.largest_area_m2(),
+        "sampling_cell_m": room.clearance_map().raster().res,
+        "sampling_reachable_m2": room.reach(radius).largest_area_m2(),
         "plans": plans,
         "p50_ms": pct(0.5),
         "p99_ms": pct(0.99),

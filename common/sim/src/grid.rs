@@ -21,9 +21,12 @@
 
 use super::spec::{ObstacleSpec, Point, RoomSpec};
 use std::collections::BinaryHeap;
+use std::sync::OnceLock;
 
 /// Cells per side at most along the room's square (the resolution grows for big rooms).
 const MAX_CELLS_PER_SIDE: f64 = 400.0;
+/// Cells per side at most of the path planner's raster ([`Raster::for_planning`]).
+pub const PLAN_MAX_CELLS_PER_SIDE: f64 = 1600.0;
 /// Finest resolution (m) of a room's [`ClearanceMap`].
 const FINEST: f64 = 0.025;
 
@@ -42,7 +45,20 @@ pub struct Raster {
 impl Raster {
     /// The raster of a room of side `side`: 2.5 cm cells, coarser for rooms over 10 m.
     pub fn for_side(side: f64) -> Raster {
-        let res = FINEST.max(side / MAX_CELLS_PER_SIDE);
+        Raster::for_side_with(side, MAX_CELLS_PER_SIDE)
+    }
+
+    /// The path planner's raster of a room of side `side`: 2.5 cm cells up to 40 m, then
+    /// [`PLAN_MAX_CELLS_PER_SIDE`] a side (3.6 cm for the 58 m Willow Garage map, whose own
+    /// pixels are 5 cm).
+    pub fn for_planning(side: f64) -> Raster {
+        Raster::for_side_with(side, PLAN_MAX_CELLS_PER_SIDE)
+    }
+
+    /// The raster of a room of side `side` with at most about `max_cells` cells a side: 2.5 cm
+    /// cells, coarser where the room needs more.
+    pub fn for_side_with(side: f64, max_cells: f64) -> Raster {
+        let res = FINEST.max(side / max_cells);
         let n = (side / res).ceil() as usize;
         let half = n as f64 * res / 2.0;
         Raster { res, origin: [-half, -half], n }
@@ -80,13 +96,56 @@ pub struct ClearanceMap {
     /// Distance (m) from each cell centre to the nearest occupied cell centre (0 on occupied
     /// cells); `f64::INFINITY` when nothing is occupied.
     dist: Vec<f64>,
+    /// Its blocks' greatest clearance, built when the planner first asks.
+    blocks: OnceLock<Blocks>,
+}
+
+/// Cells per side of a [`Blocks`] block.
+pub(crate) const BLOCK: usize = 4;
+
+/// A [`ClearanceMap`] in blocks of [`BLOCK`]² cells, each with the greatest clearance of its
+/// cells: where a disc fits *somewhere* in the block. Two cells a disc can drive between lie
+/// in blocks joined by blocks where it fits, so a search here that finds no way proves there
+/// is none, and the way it finds is a corridor for the search of the cells
+/// ([`crate::planner`]).
+#[derive(Clone, Debug)]
+pub(crate) struct Blocks {
+    /// Blocks per side (the last row and column may hold fewer cells).
+    pub(crate) n: usize,
+    /// Greatest clearance (m) of each block's cells, by flat block index.
+    pub(crate) max: Vec<f64>,
+}
+
+impl Blocks {
+    fn of(dist: &[f64], n: usize) -> Blocks {
+        let nb = n.div_ceil(BLOCK);
+        let mut max = vec![0.0f64; nb * nb];
+        for j in 0..n {
+            let row = &dist[j * n..(j + 1) * n];
+            let out = &mut max[(j / BLOCK) * nb..(j / BLOCK + 1) * nb];
+            for (i, &d) in row.iter().enumerate() {
+                let m = &mut out[i / BLOCK];
+                *m = m.max(d);
+            }
+        }
+        Blocks { n: nb, max }
+    }
+
+    /// The block holding cell `c` of an `n`-cell raster.
+    pub(crate) fn of_cell(&self, c: usize, n: usize) -> usize {
+        (c / n / BLOCK) * self.n + (c % n) / BLOCK
+    }
 }
 
 impl ClearanceMap {
     /// The walls and static obstacles of `spec` (timed obstacles are left out: they are not
     /// there when an episode starts).
     pub fn of_room(spec: &RoomSpec) -> ClearanceMap {
-        let raster = Raster::for_side(spec.side);
+        ClearanceMap::of_room_on(spec, Raster::for_side(spec.side))
+    }
+
+    /// The same on a raster of the caller's (one covering the room's square).
+    pub fn of_room_on(spec: &RoomSpec, raster: Raster) -> ClearanceMap {
         let mut occupied = vec![false; raster.n * raster.n];
         let inflate = raster.half_diagonal();
         for shape in spec.walls().iter().chain(&spec.obstacles) {
@@ -96,7 +155,7 @@ impl ClearanceMap {
             .into_iter()
             .map(|d| d.sqrt() * raster.res)
             .collect();
-        ClearanceMap { raster, dist }
+        ClearanceMap { raster, dist, blocks: OnceLock::new() }
     }
 
     /// The raster.
@@ -116,12 +175,17 @@ impl ClearanceMap {
         }
         let dist =
             distance_transform(&occupied, r.n).into_iter().map(|d| d.sqrt() * r.res).collect();
-        ClearanceMap { raster: r.clone(), dist }
+        ClearanceMap { raster: r.clone(), dist, blocks: OnceLock::new() }
     }
 
     /// Each cell centre's distance (m) to the nearest occupied centre, by flat index.
     pub(crate) fn distances(&self) -> &[f64] {
         &self.dist
+    }
+
+    /// The map in blocks ([`Blocks`]), built on first use.
+    pub(crate) fn blocks(&self) -> &Blocks {
+        self.blocks.get_or_init(|| Blocks::of(&self.dist, self.raster.n))
     }
 
     /// The clearance a disc centred on cell centres must have to be passable
@@ -190,7 +254,8 @@ pub(crate) fn distance_to_convex(p: &ObstacleSpec, q: Point) -> f64 {
 /// cell, the squared distance in cells to the nearest `true` cell (Felzenszwalb and
 /// Huttenlocher's two passes of lower envelopes of parabolas); infinite with nothing occupied.
 fn distance_transform(occupied: &[bool], n: usize) -> Vec<f64> {
-    // Far beyond any real squared distance (≤ 2·400² cells²), small enough to stay exact.
+    // Far beyond any real squared distance (≤ 2·1600² cells² on the planner's raster), small
+    // enough to stay exact.
     const FAR: f64 = 1e12;
     let mut grid: Vec<f64> = occupied.iter().map(|&o| if o { 0.0 } else { FAR }).collect();
     let mut line = vec![0.0; n];
@@ -323,10 +388,43 @@ impl Reach {
         self.sizes.iter().sum()
     }
 
+    /// Area (m²) of the largest component's cells: where the disc's centre can go from there.
+    pub fn largest_area_m2(&self) -> f64 {
+        let cells = self.sizes.iter().max().copied().unwrap_or(0);
+        cells as f64 * self.raster.res * self.raster.res
+    }
+
     /// Share of the passable cells in the largest component (0 when none is passable).
     pub fn largest_share(&self) -> f64 {
         let total = self.passable_cells();
         if total == 0 { 0.0 } else { *self.sizes.iter().max().unwrap() as f64 / total as f64 }
+    }
+
+    /// `count` pairs of passable cell centres of one component each, drawn uniformly from the
+    /// passable cells (so a big component is drawn more often) and at least `min_dist` (m)
+    /// apart; `None` when a thousand draws in a row find no such pair.
+    pub fn random_connected_pairs(
+        &self,
+        rng: &mut impl rand::Rng,
+        count: usize,
+        min_dist: f64,
+    ) -> Option<Vec<(Point, Point)>> {
+        let cells: Vec<usize> = (0..self.label.len()).filter(|&c| self.label[c] != 0).collect();
+        if cells.is_empty() {
+            return None;
+        }
+        let n = self.raster.n;
+        let centre = |c: usize| self.raster.centre(c % n, c / n);
+        let mut draw = || {
+            (0..1000).find_map(|_| {
+                let a = cells[rng.random_range(0..cells.len())];
+                let b = cells[rng.random_range(0..cells.len())];
+                let (pa, pb) = (centre(a), centre(b));
+                let far = (pa[0] - pb[0]).hypot(pa[1] - pb[1]) >= min_dist;
+                (self.label[a] == self.label[b] && far).then_some((pa, pb))
+            })
+        };
+        (0..count).map(|_| draw()).collect()
     }
 
     /// The passable cells within `slack` (m) of `p`, nearest first: the cells `p` joins the

@@ -16,9 +16,9 @@
 //!   corner and the path loses the grid's 45° zig-zags without hugging walls.
 
 use crate::dist;
-use crate::grid::{ClearanceMap, Open, neighbours};
+use crate::grid::{BLOCK, ClearanceMap};
 use crate::spec::Point;
-use std::collections::BinaryHeap;
+use search::{Grid, Search};
 
 /// How paths are shaped (the defaults are measured: `dvnav bench plan`, docs/results.md).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -182,9 +182,23 @@ fn entry(
         .ok_or(PlanError::NoRoom { which, point: p, radius: r })
 }
 
+/// Blocks of dilation round the block path that the cell search may use: the cheapest path
+/// of the cells keeps within about a metre of the blocks' (measured on Willow Garage,
+/// `dvnav bench plan`).
+const CORRIDOR_BLOCKS: usize = 3;
+
+/// Rasters with fewer cells a side are searched cell by cell at once.
+const SEARCH_BLOCKS_FROM: usize = 480;
+
 /// A* from cell `from` to cell `to` over cells with clearance ≥ `need`, each step's length
 /// times `1 + w·exp(−(clearance − need)/decay)` of the cell stepped into; the cells of the
 /// cheapest path, `from` first.
+///
+/// On a big raster (a building at its map's resolution) the search runs on the map's blocks
+/// first ([`crate::grid::Blocks`], each with its best cell's clearance, so it never misses a
+/// way and proves unreachability at a sixteenth of the cells), then on the cells of a
+/// corridor round the block path; if the corridor holds no way (a door that fits somewhere in
+/// its blocks but not along them), the cells of the whole map.
 fn astar(
     map: &ClearanceMap,
     need: f64,
@@ -192,55 +206,64 @@ fn astar(
     to: usize,
     cfg: &PlannerConfig,
 ) -> Option<Vec<usize>> {
+    astar_by(map, need, from, to, cfg, map.raster().n >= SEARCH_BLOCKS_FROM)
+}
+
+/// [`astar`], by blocks first or not.
+fn astar_by(
+    map: &ClearanceMap,
+    need: f64,
+    from: usize,
+    to: usize,
+    cfg: &PlannerConfig,
+    by_blocks: bool,
+) -> Option<Vec<usize>> {
     let raster = map.raster();
     let n = raster.n;
     let dist_of = map.distances();
-    let (ti, tj) = ((to % n) as f64, (to / n) as f64);
-    // In cells; every step costs at least its length, so the straight line is admissible.
-    let h = |c: usize| ((c % n) as f64 - ti).hypot((c / n) as f64 - tj);
-    let decay_cells = (cfg.clearance_decay_m / raster.res).max(1e-9);
-    let cost = |c: usize| {
-        let extra = (dist_of[c] - need) / raster.res;
-        1.0 + cfg.clearance_weight * (-extra / decay_cells).exp()
+    let decay = cfg.clearance_decay_m.max(1e-9);
+    let cost = |clear: f64| {
+        (clear >= need).then(|| 1.0 + cfg.clearance_weight * (-(clear - need) / decay).exp())
     };
-    let mut g = vec![f64::INFINITY; n * n];
-    let mut parent = vec![u32::MAX; n * n];
-    let mut heap = BinaryHeap::new();
-    g[from] = 0.0;
-    heap.push(Open { f: h(from), c: from });
-    while let Some(Open { f, c }) = heap.pop() {
-        if c == to {
-            let mut cells = vec![to];
-            let mut at = to;
-            while at != from {
-                at = parent[at] as usize;
-                cells.push(at);
-            }
-            cells.reverse();
-            return Some(cells);
-        }
-        if f > g[c] + h(c) + 1e-9 {
-            continue;
-        }
-        for (nb, len) in neighbours(c, n) {
-            if dist_of[nb] < need {
-                continue;
-            }
-            let cand = g[c] + len * cost(nb);
-            if cand < g[nb] {
-                g[nb] = cand;
-                parent[nb] = c as u32;
-                heap.push(Open { f: cand + h(nb), c: nb });
+    let cells = |allowed: &dyn Fn(usize) -> bool| {
+        let grid = Grid { n, unit: 1.0, cost: |c: usize| cost(dist_of[c]), allowed };
+        CELLS.with_borrow_mut(|s| grid.astar(s, from, to))
+    };
+    if !by_blocks {
+        return cells(&|_| true);
+    }
+    let blocks = map.blocks();
+    let nb = blocks.n;
+    let blocks_grid =
+        Grid { n: nb, unit: BLOCK as f64, cost: |b: usize| cost(blocks.max[b]), allowed: |_| true };
+    let (bf, bt) = (blocks.of_cell(from, n), blocks.of_cell(to, n));
+    let way = BLOCKS.with_borrow_mut(|s| blocks_grid.astar(s, bf, bt))?;
+    let mut corridor = vec![false; nb * nb];
+    let k = CORRIDOR_BLOCKS as isize;
+    for &b in &way {
+        let (bi, bj) = ((b % nb) as isize, (b / nb) as isize);
+        for j in (bj - k).max(0)..=(bj + k).min(nb as isize - 1) {
+            for i in (bi - k).max(0)..=(bi + k).min(nb as isize - 1) {
+                corridor[j as usize * nb + i as usize] = true;
             }
         }
     }
-    None
+    cells(&|c| corridor[blocks.of_cell(c, n)]).or_else(|| cells(&|_| true))
 }
 
-/// The polyline `points` cut to the farthest vertex in line of sight from each kept one: a
-/// shortcut's every sample keeps clearance `min(need + preferred, the least clearance of the
+thread_local! {
+    /// Each thread's search arrays for the cells and for the blocks, reused from plan to plan.
+    static CELLS: std::cell::RefCell<Search> = std::cell::RefCell::new(Search::default());
+    static BLOCKS: std::cell::RefCell<Search> = std::cell::RefCell::new(Search::default());
+}
+
+/// The polyline `points` cut, from each kept vertex, to a farther one in line of sight: a
+/// shortcut's every cell keeps clearance `min(need + preferred, the least clearance of the
 /// vertices it skips and joins)` (never below `need`), so it is never tighter than the grid
-/// path was there.
+/// path was there. The farthest such vertex is found by galloping and then bisecting along the
+/// path (a few segment tests, not one per vertex: a straight corridor of a building is
+/// hundreds of cells), so where sight comes and goes along the path the cut may land past a
+/// vertex that is not in sight, never on one.
 fn pull_string(
     map: &ClearanceMap,
     points: &[Point],
@@ -248,22 +271,40 @@ fn pull_string(
     need: f64,
     preferred: f64,
 ) -> Vec<Point> {
+    let last = points.len() - 1;
     let mut out = vec![points[0]];
     let mut a = 0;
-    while a + 1 < points.len() {
-        let mut best = a + 1;
-        let mut least = clear[a].min(clear[a + 1]);
-        for j in a + 2..points.len() {
-            least = least.min(clear[j]);
-            let want = least.min(need + preferred).max(need);
-            if segment_clear(map, points[a], points[j], want) {
-                best = j;
+    while a < last {
+        let in_sight = |j: usize| {
+            let least = clear[a..=j].iter().copied().fold(f64::INFINITY, f64::min);
+            segment_clear(map, points[a], points[j], least.min(need + preferred).max(need))
+        };
+        // The next vertex is always taken: the grid path steps to it.
+        let mut good = a + 1;
+        let mut step = 1;
+        let mut bad = None;
+        while good < last {
+            let j = (good + step).min(last);
+            if in_sight(j) {
+                good = j;
+                step *= 2;
             } else {
+                bad = Some(j);
                 break;
             }
         }
-        out.push(points[best]);
-        a = best;
+        if let Some(mut bad) = bad {
+            while bad - good > 1 {
+                let mid = good + (bad - good) / 2;
+                if in_sight(mid) {
+                    good = mid;
+                } else {
+                    bad = mid;
+                }
+            }
+        }
+        out.push(points[good]);
+        a = good;
     }
     out
 }
@@ -275,19 +316,57 @@ pub fn line_of_sight(map: &ClearanceMap, a: Point, b: Point, radius: f64) -> boo
     segment_clear(map, a, b, radius)
 }
 
-/// True when every point of the segment `a`–`b`, sampled every quarter cell, lies in a cell
-/// with clearance at least `want`.
+/// True when every cell the segment `a`–`b` passes through is on the raster and has
+/// clearance at least `want` (the cells walked in order, Amanatides and Woo's traversal).
 fn segment_clear(map: &ClearanceMap, a: Point, b: Point, want: f64) -> bool {
-    let raster = map.raster();
+    let r = map.raster();
     let dist_of = map.distances();
-    let len = dist(a, b);
-    let steps = ((len / (0.25 * raster.res)).ceil() as usize).max(1);
-    (0..=steps).all(|k| {
-        let t = k as f64 / steps as f64;
-        let q = [a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])];
-        raster.cell_of(q).is_some_and(|(i, j)| dist_of[raster.index(i, j)] >= want)
-    })
+    let to_grid = |p: Point| [(p[0] - r.origin[0]) / r.res, (p[1] - r.origin[1]) / r.res];
+    let (ga, gb) = (to_grid(a), to_grid(b));
+    let n = r.n as f64;
+    let on = |g: [f64; 2]| g.iter().all(|&v| v >= 0.0 && v < n);
+    if !on(ga) || !on(gb) {
+        return false;
+    }
+    let (mut i, mut j) = (ga[0] as usize, ga[1] as usize);
+    let (bi, bj) = (gb[0] as usize, gb[1] as usize);
+    let (dx, dy) = (gb[0] - ga[0], gb[1] - ga[1]);
+    // Per axis: the step, the parameter t (0 at a, 1 at b) of the next cell border and the
+    // parameter a cell's width takes.
+    let axis = |d: f64, g: f64, cell: usize| -> (isize, f64, f64) {
+        if d > 0.0 {
+            (1, (cell as f64 + 1.0 - g) / d, 1.0 / d)
+        } else if d < 0.0 {
+            (-1, (g - cell as f64) / -d, -1.0 / d)
+        } else {
+            (0, f64::INFINITY, f64::INFINITY)
+        }
+    };
+    let (si, mut ti, di) = axis(dx, ga[0], i);
+    let (sj, mut tj, dj) = axis(dy, ga[1], j);
+    // Each step moves one cell towards b's: this many reach it (should rounding step past it,
+    // b's cell is still tested).
+    for _ in 0..=(i.abs_diff(bi) + j.abs_diff(bj)) {
+        if dist_of[r.index(i, j)] < want {
+            return false;
+        }
+        if (i, j) == (bi, bj) {
+            return true;
+        }
+        if ti < tj {
+            i = i.wrapping_add_signed(si);
+            ti += di;
+        } else {
+            j = j.wrapping_add_signed(sj);
+            tj += dj;
+        }
+        if i >= r.n || j >= r.n {
+            return false;
+        }
+    }
+    dist_of[r.index(bi, bj)] >= want
 }
 
+mod search;
 #[cfg(test)]
 mod tests;

@@ -388,6 +388,7 @@ fn act_reply(c: Command, model: &ModelId) -> pb::ActReply {
         remaining_m: route.map_or(0.0, |r| r.remaining_m),
         replan_wanted: route.is_some_and(|r| r.replan_wanted),
         replans: route.map_or(0, |r| r.replans),
+        replanning: route.is_some_and(|r| r.replanning),
         blocked: route.is_some_and(|r| r.blocked),
         v: c.v,
         omega: c.omega,

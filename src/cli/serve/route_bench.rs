@@ -1,7 +1,8 @@
 //! The routed fleet of `dvnav bench serve`: robots the server plans for on a real building's
 //! map (`SetMap`, then `SetGoal` per leg), each `Act` carrying the robot's pose, and every robot
-//! now and then far off its path so that the server replans inside `Act`. It measures what a
-//! replanning robot costs the others: the latency of every call, and of the replanning calls.
+//! now and then far off its path so that the server replans for it (on its planner thread, asked
+//! by that `Act`). It measures what a replanning robot costs the others: the latency of every
+//! call, and of the calls that asked for a replan.
 
 use super::latency::Latency;
 use dvnav_proto::controller::v1 as pb;
@@ -21,7 +22,7 @@ pub struct RouteLoad {
     /// How long they drive (s, after 1 s of settling).
     pub seconds: f64,
     /// Every this many calls a robot reports a pose far from its path (the next leg's start):
-    /// the server replans for it in that call.
+    /// the server starts a replan for it in that call.
     pub stray_every: usize,
 }
 
@@ -38,7 +39,8 @@ pub struct RouteFigures {
     pub route_p50_ms: f64,
     pub route_p99_ms: f64,
     pub route_max_ms: f64,
-    /// The calls in which the server replanned.
+    /// The calls that asked the server for a replan (it plans on its planner thread; a later
+    /// call of the robot's takes up the new path).
     pub route_replan_calls: usize,
     pub route_replan_p50_ms: f64,
     pub route_replan_max_ms: f64,
@@ -103,34 +105,45 @@ pub async fn drive(
             let timed_from = Instant::now() + Duration::from_secs(1);
             let mut tick = tokio::time::interval_at((Instant::now() + phase).into(), period);
             tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-            // Each timed call's latency (ms) and whether the server replanned in it.
+            // Each timed call's latency (ms) and whether it asked the server for a replan.
             let mut calls: Vec<(f64, bool)> = Vec::new();
             let (mut leg, mut at, mut replans_before, mut replans) = (0, legs[0][0], 0, 0u64);
+            let (mut replanning_before, mut asked_timed) = (false, false);
             let set_goal = |leg: usize| pb::SetGoalRequest {
                 robot_id: id.clone(),
                 start: pose(legs[leg % legs.len()][0]),
                 goal: pose(legs[leg % legs.len()][1]),
             };
             client.set_goal(set_goal(leg)).await?;
-            let mut k = 0;
+            let (mut k, mut strays) = (0, 0);
             while Instant::now() < until {
                 tick.tick().await;
                 k += 1;
                 if k % stray_every == 0 {
-                    // Far from the path, in free space: the next leg's start.
-                    at = legs[(leg + 1) % legs.len()][0];
+                    // Far from the path, in free space: another leg's start, a new one each
+                    // time (the same point twice would lie on the path planned from it).
+                    strays += 1;
+                    at = legs[(leg + strays) % legs.len()][0];
                 }
                 let mut r = act(n * 1000 + k, &id);
                 r.pose = pose(at);
                 let t = Instant::now();
                 let reply = client.act(r).await?.into_inner();
                 let ms = t.elapsed().as_secs_f64() * 1e3;
-                let replanned = reply.replans > replans_before;
-                if t >= timed_from {
+                let asked = reply.replanning && !replanning_before;
+                let timed = t >= timed_from;
+                // A replan counts when the call that asked for it was timed.
+                if asked_timed {
                     replans += u64::from(reply.replans.saturating_sub(replans_before));
-                    calls.push((ms, replanned));
+                }
+                if reply.replans > replans_before || asked {
+                    asked_timed = asked && timed;
+                }
+                if timed {
+                    calls.push((ms, asked));
                 }
                 replans_before = reply.replans;
+                replanning_before = reply.replanning;
                 // Drive towards the subgoal (0.05 m a call); a new leg once there or blocked.
                 let to = [reply.subgoal_x - at[0], reply.subgoal_y - at[1]];
                 let d = to[0].hypot(to[1]);
@@ -138,11 +151,14 @@ pub async fn drive(
                     let s = (0.05 / d).min(1.0);
                     at = [at[0] + s * to[0], at[1] + s * to[1]];
                 }
-                if !reply.following_route || reply.blocked || reply.remaining_m < 0.3 {
+                // (While the server replans, the reply is still about the old path.)
+                let done = reply.blocked || reply.remaining_m < 0.3;
+                if !reply.following_route || (done && !reply.replanning) {
                     leg += 1;
                     at = legs[leg % legs.len()][0];
                     client.set_goal(set_goal(leg)).await?;
                     replans_before = 0;
+                    (replanning_before, asked_timed) = (false, false);
                 }
             }
             anyhow::Ok((calls, replans))

@@ -45,7 +45,7 @@ impl RouteState {
     ) -> RouteState {
         let mut guide = RouteGuide::new(cfg.clone(), scale, goal);
         let first =
-            planner::plan(room.clearance_map(), radius, start.position(), goal, &cfg.planner);
+            planner::plan(room.planning_map(), radius, start.position(), goal, &cfg.planner);
         let stats = RouteStats {
             follow,
             planned_length_m: first.as_ref().ok().map(|p| p.length_m),
@@ -78,10 +78,10 @@ impl RouteState {
             let goal = self.guide.goal();
             let found = match why {
                 Replan::Drift => {
-                    planner::plan(room.clearance_map(), self.radius, pose.position(), goal, &cfg)
+                    planner::plan(room.planning_map(), self.radius, pose.position(), goal, &cfg)
                 }
                 Replan::Stall => {
-                    let map = room.clearance_map().with_points(&scan_points());
+                    let map = room.planning_map().with_points(&scan_points());
                     planner::plan(&map, self.radius, pose.position(), goal, &cfg)
                 }
             };
@@ -134,5 +134,5 @@ impl RouteState {
 
 /// The subgoal rule's visibility test in `room` for a robot of `radius`.
 fn sight(room: &Room, radius: f64) -> impl Fn(Point, Point) -> bool + '_ {
-    move |a, b| planner::line_of_sight(room.clearance_map(), a, b, radius)
+    move |a, b| planner::line_of_sight(room.planning_map(), a, b, radius)
 }

@@ -111,3 +111,17 @@ fn points_added_to_a_map_close_a_gap() {
     assert!(!closed.reach(0.2).connected(left, right, 0.1));
     assert_eq!(map.with_points(&[]).dist, map.dist);
 }
+
+#[test]
+fn connected_pairs_lie_in_one_component_and_far_enough_apart() {
+    use rand::SeedableRng;
+    let reach = ClearanceMap::of_room(&split_room(0.3)).reach(0.2);
+    assert_eq!(reach.component_count(), 2, "the gap is too narrow for the disc");
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+    for (a, b) in reach.random_connected_pairs(&mut rng, 200, 1.5).unwrap() {
+        assert!((a[0] - b[0]).hypot(a[1] - b[1]) >= 1.5);
+        assert_eq!(a[0] < 0.0, b[0] < 0.0, "{a:?} and {b:?} are on either side of the wall");
+        assert!(reach.connected(a, b, 0.0));
+    }
+    assert_eq!(reach.random_connected_pairs(&mut rng, 1, 100.0), None);
+}

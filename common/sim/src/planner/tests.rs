@@ -141,3 +141,129 @@ fn a_start_against_a_wall_joins_on_its_own_side() {
         .unwrap();
     assert!(p.points.iter().all(|q| q[0] < 0.0), "{:?}", p.points);
 }
+
+/// A building-sized room (50 m, so the task-sampling raster has 12.5 cm cells and the
+/// planner's 3.1 cm) split at x = 0 by a wall with a door of `door` m centred at y = 5, and
+/// furnished with seeded boxes on either side.
+fn building(door: f64) -> RoomSpec {
+    use rand::{Rng, SeedableRng};
+    let mut spec = RoomSpec::empty("building", 50.0);
+    let t = Some(0.1);
+    spec.wall_segments = vec![
+        WallSegment { from: [0.0, 25.0], to: [0.0, 5.0 + door / 2.0], thickness: t },
+        WallSegment { from: [0.0, 5.0 - door / 2.0], to: [0.0, -25.0], thickness: t },
+    ];
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
+    while spec.obstacles.len() < 120 {
+        let c: [f64; 2] = [rng.random_range(-23.0..23.0), rng.random_range(-23.0..23.0)];
+        let h: [f64; 2] = [rng.random_range(0.2..1.5), rng.random_range(0.2..1.5)];
+        // Keep the door's approaches open.
+        if c[0].abs() - h[0] < 2.0 && (c[1] - 5.0).abs() - h[1] < 2.0 {
+            continue;
+        }
+        spec.obstacles.push(ObstacleSpec::Box { center: c, half_extents: h, angle: 0.0 });
+    }
+    spec
+}
+
+/// What a cell path costs the planner's search (its steps' lengths in cells, each times the
+/// inflation cost of the cell stepped into).
+fn cell_path_cost(map: &ClearanceMap, need: f64, cfg: &PlannerConfig, cells: &[usize]) -> f64 {
+    let n = map.raster().n;
+    let d = map.distances();
+    cells
+        .windows(2)
+        .map(|w| {
+            let (a, b) = (w[0], w[1]);
+            let len = if a % n != b % n && a / n != b / n { std::f64::consts::SQRT_2 } else { 1.0 };
+            len * (1.0 + cfg.clearance_weight * (-(d[b] - need) / cfg.clearance_decay_m).exp())
+        })
+        .sum()
+}
+
+#[test]
+fn a_door_the_robot_fits_through_in_a_building_is_planned_through() {
+    // 0.85 m of door for a 0.3 m robot: 25 cm to spare, which the task-sampling raster's
+    // conservative cells do not see; the planner's raster does.
+    let r = 0.3;
+    let room = Room::new(building(2.0 * r + 0.25));
+    let (a, b) = ([-6.0, 5.0], [6.0, 5.5]);
+    assert!(!room.reach(r).connected(a, b, 0.0), "the sampling raster calls the door shut");
+    let map = room.planning_map();
+    assert!(map.raster().res < 0.04, "{}", map.raster().res);
+    let p = plan(map, r, a, b, &PlannerConfig::default()).unwrap();
+    assert_collision_free(&room, &p, r);
+    assert!(p.length_m < 13.0, "{} m: round the door?", p.length_m);
+    // 10 cm narrower, and it is shut for this robot.
+    let shut = Room::new(building(2.0 * r + 0.05));
+    let err = plan(shut.planning_map(), r, a, b, &PlannerConfig::default()).unwrap_err();
+    assert_eq!(err, PlanError::Unreachable { goal: b, radius: r });
+}
+
+#[test]
+fn the_block_corridor_keeps_the_cheapest_path_of_the_cells() {
+    use rand::SeedableRng;
+    let room = Room::new(building(1.0));
+    let map = room.planning_map();
+    assert!(map.raster().n >= SEARCH_BLOCKS_FROM, "the blocks are searched first here");
+    let cfg = PlannerConfig::default();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+    for r in [0.2, 0.4] {
+        let need = map.passable_need(r);
+        let reach = map.reach(r);
+        for (a, b) in reach.random_connected_pairs(&mut rng, 6, 10.0).unwrap() {
+            let cell = |p: Point| {
+                let (i, j) = map.raster().cell_of(p).unwrap();
+                map.raster().index(i, j)
+            };
+            let by_blocks = astar_by(map, need, cell(a), cell(b), &cfg, true).unwrap();
+            let whole = astar_by(map, need, cell(a), cell(b), &cfg, false).unwrap();
+            let (cb, cw) = (
+                cell_path_cost(map, need, &cfg, &by_blocks),
+                cell_path_cost(map, need, &cfg, &whole),
+            );
+            assert!(cb <= cw * 1.01 && cw <= cb * 1.0001, "r {r} {a:?} -> {b:?}: {cb} vs {cw}");
+            let p = plan(map, r, a, b, &cfg).unwrap();
+            assert_collision_free(&room, &p, r);
+        }
+    }
+}
+
+#[test]
+fn segments_are_tested_on_every_cell_they_cross() {
+    use rand::{Rng, SeedableRng};
+    let room = Room::new(s_bend());
+    let map = room.clearance_map();
+    let r = map.raster();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
+    let (mut clear, mut blocked) = (0, 0);
+    for _ in 0..400 {
+        let mut p = || [rng.random_range(-3.9..3.9), rng.random_range(-3.9..3.9)];
+        let (a, b) = (p(), p());
+        let want = 0.3;
+        // Every cell a dense sampling of the segment lands in (a thousandth of a cell apart).
+        let steps = (dist(a, b) / (1e-3 * r.res)).ceil() as usize;
+        let dense = (0..=steps).all(|k| {
+            let t = k as f64 / steps as f64;
+            let q = [a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])];
+            let (i, j) = r.cell_of(q).unwrap();
+            map.distances()[r.index(i, j)] >= want
+        });
+        assert_eq!(segment_clear(map, a, b, want), dense, "{a:?} -> {b:?}");
+        if dense { clear += 1 } else { blocked += 1 }
+    }
+    assert!(clear > 40 && blocked > 40, "{clear} clear, {blocked} blocked");
+    // Off the raster is never clear.
+    assert!(!segment_clear(map, [0.0, 0.0], [9.0, 0.0], 0.0));
+}
+
+#[test]
+fn plans_in_rooms_of_other_sizes_between_do_not_disturb_each_other() {
+    let small = Room::new(s_bend());
+    let big = Room::new(building(1.0));
+    let cfg = PlannerConfig::default();
+    let first = plan(small.clearance_map(), 0.3, [-3.0, -3.0], [3.0, 3.0], &cfg).unwrap();
+    plan(big.planning_map(), 0.3, [-6.0, 5.0], [6.0, 5.5], &cfg).unwrap();
+    let again = plan(small.clearance_map(), 0.3, [-3.0, -3.0], [3.0, 3.0], &cfg).unwrap();
+    assert_eq!(first, again);
+}
