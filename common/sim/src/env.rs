@@ -259,8 +259,12 @@ impl NavEnv {
         // shares a few grids per room; the rounding comes out of the join slack.
         let r = self.footprint.bounding_radius();
         let r_grid = (r * 100.0).ceil() / 100.0;
+        // Long tasks (a route, any way round) are the planner's: a goal is reachable when it
+        // can plan there, on its finer raster (in a building, through doors the sampling
+        // raster's conservative cells call shut).
+        let long = self.cfg.subgoals.is_some() && self.cfg.max_path_ratio <= 0.0;
         let reach = (self.cfg.reachable_tasks || self.cfg.max_path_ratio > 0.0)
-            .then(|| self.room.reach(r_grid));
+            .then(|| if long { self.room.planning_reach(r_grid) } else { self.room.reach(r_grid) });
         let slack = self.cfg.spawn_clearance - (r_grid - r);
         for _ in 0..100 {
             let start = self.sample_free(need, true)?;

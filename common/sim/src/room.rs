@@ -42,6 +42,8 @@ pub struct Room {
     planning_map: OnceLock<ClearanceMap>,
     /// Where discs of the radii asked so far can go, by radius (bits of the `f64`).
     reach: Mutex<Vec<(u64, Arc<Reach>)>>,
+    /// The same on the planner's raster, where it is finer.
+    planning_reach: Mutex<Vec<(u64, Arc<Reach>)>>,
 }
 
 /// One timed obstacle, ready for queries.
@@ -114,6 +116,18 @@ impl Body {
     }
 }
 
+/// `map`'s reach for `radius` from `cache`, computed and kept there on first use.
+fn reach_of(cache: &Mutex<Vec<(u64, Arc<Reach>)>>, map: &ClearanceMap, radius: f64) -> Arc<Reach> {
+    let key = radius.to_bits();
+    let mut cache = cache.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some((_, r)) = cache.iter().find(|(k, _)| *k == key) {
+        return r.clone();
+    }
+    let r = Arc::new(map.reach(radius));
+    cache.push((key, r.clone()));
+    r
+}
+
 fn pose_of(p: Pose2) -> Pose {
     Pose::new(Vector::new(p.x as Real, p.y as Real), p.yaw as Real)
 }
@@ -166,6 +180,7 @@ impl Room {
             clearance_map: OnceLock::new(),
             planning_map: OnceLock::new(),
             reach: Mutex::new(Vec::new()),
+            planning_reach: Mutex::new(Vec::new()),
         })
     }
 
@@ -251,14 +266,16 @@ impl Room {
     /// Where a disc of `radius` can go in this room ([`crate::grid`]): computed on first use
     /// for each radius and kept.
     pub fn reach(&self, radius: f64) -> Arc<Reach> {
-        let key = radius.to_bits();
-        let mut cache = self.reach.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some((_, r)) = cache.iter().find(|(k, _)| *k == key) {
-            return r.clone();
+        reach_of(&self.reach, self.clearance_map(), radius)
+    }
+
+    /// [`Room::reach`] on the planner's raster ([`Room::planning_map`]): where the planner
+    /// can take a disc of `radius`. Computed on first use for each radius and kept.
+    pub fn planning_reach(&self, radius: f64) -> Arc<Reach> {
+        if Raster::for_planning(self.spec.side) == Raster::for_side(self.spec.side) {
+            return self.reach(radius);
         }
-        let r = Arc::new(self.clearance_map().reach(radius));
-        cache.push((key, r.clone()));
-        r
+        reach_of(&self.planning_reach, self.planning_map(), radius)
     }
 
     /// The room's static shapes rastered with each cell's clearance ([`crate::grid`]): computed

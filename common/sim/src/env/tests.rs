@@ -977,3 +977,41 @@ fn a_varied_robot_episode_goes_through_dvst() {
     let named = NavEnv::with_footprint(Room::builtin("env1").unwrap(), &half, 9, fp);
     assert_eq!(named.dvst_scale(), 1.0);
 }
+
+#[test]
+fn long_tasks_are_drawn_where_the_planner_reaches() {
+    // A 30 m hall split at x = 0 with a 0.75 m door: 0.35 m to spare for a 0.2 m robot, which
+    // the task-sampling raster's 7.5 cm conservative cells call shut and the planner's 2.5 cm
+    // ones do not.
+    let mut spec = RoomSpec::empty("hall", 30.0);
+    spec.wall_segments = vec![
+        crate::WallSegment { from: [0.0, 15.0], to: [0.0, 0.375], thickness: Some(0.1) },
+        crate::WallSegment { from: [0.0, -0.375], to: [0.0, -15.0], thickness: Some(0.1) },
+    ];
+    let room = Arc::new(Room::new(spec));
+    assert!(!room.reach(0.2).connected([-3.0, 0.0], [3.0, 0.0], 0.1));
+    assert!(room.planning_reach(0.2).connected([-3.0, 0.0], [3.0, 0.0], 0.1));
+    let long = EnvConfig {
+        min_start_goal_distance: 5.0,
+        max_start_goal_distance: 10.0,
+        max_path_ratio: 0.0,
+        ..with_subgoals()
+    };
+    let mut env = NavEnv::new(room.clone(), &long, 3);
+    let across = (0..200)
+        .filter(|_| {
+            env.reset();
+            let (a, b) = (env.start().position(), env.goal());
+            assert!(!env.route_stats().unwrap().blocked, "{a:?} -> {b:?} was drawn unplannable");
+            (a[0] < 0.0) != (b[0] < 0.0)
+        })
+        .count();
+    assert!(across >= 10, "{across} of 200 long tasks through the door");
+    // Local tasks keep the sampling raster: none goes through.
+    let local = EnvConfig { min_start_goal_distance: 5.0, max_start_goal_distance: 10.0, ..cfg() };
+    let mut env = NavEnv::new(room, &local, 3);
+    for _ in 0..100 {
+        env.reset();
+        assert_eq!(env.start().position()[0] < 0.0, env.goal()[0] < 0.0);
+    }
+}
