@@ -582,8 +582,9 @@ impl NavEnv {
             Some(route) => {
                 let (pose, scan, angles) = (self.pose, &self.scan, self.lidar.beam_angles());
                 let max = self.cfg.lidar.range_max as f32;
-                let left = route
-                    .step(&self.room, pose, self.cfg.dt, || scan_points(pose, scan, angles, max));
+                let left = route.step(&self.room, pose, self.cfg.dt, || {
+                    crate::lidar::scan_points(pose, scan, angles, max)
+                });
                 if route.follow() { left } else { self.goal_distance }
             }
             None => self.goal_distance,
@@ -811,18 +812,6 @@ impl NavEnv {
     pub fn timed_active(&self) -> usize {
         self.active
     }
-}
-
-/// The returns of `scan` (beams at `angles` from `pose`, `max` for none) as room points.
-fn scan_points(pose: Pose2, scan: &[f32], angles: &[f64], max: f32) -> Vec<[f64; 2]> {
-    scan.iter()
-        .zip(angles)
-        .filter(|(r, _)| **r > 0.0 && **r < max)
-        .map(|(&r, &a)| {
-            let (s, c) = (pose.yaw + a).sin_cos();
-            [pose.x + r as f64 * c, pose.y + r as f64 * s]
-        })
-        .collect()
 }
 
 /// The unicycle's pose after driving `(v, ω)` for `t` seconds from `p`, in closed form.

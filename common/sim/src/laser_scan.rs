@@ -139,6 +139,13 @@ impl BeamLayout {
         BeamLayout { beams, fov: fov_deg.to_radians() }
     }
 
+    /// Each beam's centre angle relative to the heading (rad), right to left, as
+    /// [`crate::Lidar`] casts them.
+    pub fn angles(&self) -> Vec<f64> {
+        let (start, w) = self.grid();
+        (0..self.beams).map(|i| start + w * (i as f64 + 0.5)).collect()
+    }
+
     /// Whether the beams go all the way round (the last one neighbours the first).
     pub(crate) fn wraps(&self) -> bool {
         self.fov >= TAU - 1e-9

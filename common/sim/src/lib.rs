@@ -79,7 +79,7 @@ pub use env_config::{DvstTrainingConfig, EnvConfig, LidarConfig, RewardConfig};
 pub use footprint::Footprint;
 pub use footprint::MAX_ROBOT_EXTENT_M;
 pub use footprint::checked_parts;
-pub use lidar::Lidar;
+pub use lidar::{Lidar, scan_points};
 pub use outcome::{Outcome, score};
 pub use robustness::{RandomizeConfig, RobustnessConfig};
 pub use room::Room;

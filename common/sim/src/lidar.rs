@@ -185,5 +185,18 @@ impl Lidar {
     }
 }
 
+/// The returns of `scan` (beams at `angles` from `pose`, `max` or more for none, 0 for none
+/// either) as points in `pose`'s frame: what a replan marks as obstacles after a stall.
+pub fn scan_points(pose: Pose2, scan: &[f32], angles: &[f64], max: f32) -> Vec<[f64; 2]> {
+    scan.iter()
+        .zip(angles)
+        .filter(|(r, _)| **r > 0.0 && **r < max)
+        .map(|(&r, &a)| {
+            let (s, c) = (pose.yaw + a).sin_cos();
+            [pose.x + r as f64 * c, pose.y + r as f64 * s]
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests;

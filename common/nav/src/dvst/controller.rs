@@ -460,7 +460,6 @@ impl DvstController {
                 current: state.version,
             });
         }
-        let route = self.follow_route(input, &state)?;
         let b = self.beams;
         let mut obs = vec![0.0f32; obs_dim(b)];
         let filled_beams = match input.scan {
@@ -475,6 +474,7 @@ impl DvstController {
                 )?
             }
         };
+        let route = self.follow_route(input, &state, &obs[..b])?;
         let (goal_distance, goal_angle, arrived, shim) = match &route {
             Some(r) => (r.goal_distance, r.goal_angle, r.arrived, r.shim),
             None => (
@@ -503,6 +503,7 @@ impl DvstController {
         &self,
         input: &RobotInput,
         state: &FootprintState,
+        scan: &[f32],
     ) -> Result<Option<RouteStep>, ControllerError> {
         let Some(route) = self.routes_table().seen(input.robot_id, Instant::now()) else {
             return Ok(None);
@@ -518,7 +519,14 @@ impl DvstController {
             )
         })?;
         let mut route = route.lock().unwrap_or_else(PoisonError::into_inner);
-        let (status, shim) = route.step(pose, self.control_period_s, state.bounds.omega_max);
+        // The scan's returns in the route's frame (its beams in the robot's own metres, before
+        // DVST scales them), for a replan after a stall.
+        let returns = || {
+            let angles = BeamLayout::new(self.beams, self.fov_deg).angles();
+            dvnav_sim::scan_points(pose, scan, &angles, self.scan_range[1] as f32)
+        };
+        let (status, shim) =
+            route.step(pose, self.control_period_s, state.bounds.omega_max, returns);
         let goal = route.goal();
         let arrived = (pose.x - goal[0]).hypot(pose.y - goal[1]) <= state.goal_tolerance;
         let [x, y] = pose.to_local(status.subgoal);

@@ -16,7 +16,7 @@ use dvnav_sim::Pose2;
 use dvnav_sim::grid::{ClearanceMap, Raster};
 use dvnav_sim::grid_map::{self, MapFrame};
 use dvnav_sim::planner::{self, PlanError, PlannedPath, PlannerConfig};
-use dvnav_sim::subgoal::{RouteGuide, SubgoalConfig};
+use dvnav_sim::subgoal::{Replan, RouteGuide, SubgoalConfig};
 use std::sync::{Arc, Mutex, OnceLock, mpsc};
 
 /// The largest map file text `SetMap` takes (bytes).
@@ -73,8 +73,33 @@ impl PlanMap {
         goal: [f64; 2],
         cfg: &PlannerConfig,
     ) -> Result<Vec<[f64; 2]>, RouteRefusal> {
+        self.plan_avoiding(radius, start, goal, cfg, &[])
+    }
+
+    /// [`PlanMap::plan`] with `obstacles` (map frame) marked occupied as well: a robot's scan
+    /// returns after it stalled (a closed door, a person standing in the way), as the
+    /// simulator's replans do ([`dvnav_sim::grid::ClearanceMap::with_points`]; on a building's
+    /// map that redoes its distance transform, a tenth of a second, so only on the planner
+    /// thread).
+    pub fn plan_avoiding(
+        &self,
+        radius: f64,
+        start: [f64; 2],
+        goal: [f64; 2],
+        cfg: &PlannerConfig,
+        obstacles: &[[f64; 2]],
+    ) -> Result<Vec<[f64; 2]>, RouteRefusal> {
         let (a, b) = (self.frame.map_to_room(start), self.frame.map_to_room(goal));
-        let path = planner::plan(&self.clearance, radius, a, b, cfg).map_err(|e| {
+        let marked;
+        let clearance = if obstacles.is_empty() {
+            &self.clearance
+        } else {
+            let room: Vec<[f64; 2]> =
+                obstacles.iter().map(|&p| self.frame.map_to_room(p)).collect();
+            marked = self.clearance.with_points(&room);
+            &marked
+        };
+        let path = planner::plan(clearance, radius, a, b, cfg).map_err(|e| {
             let field = match &e {
                 PlanError::OffMap { which, .. } | PlanError::NoRoom { which, .. } => *which,
                 PlanError::Unreachable { .. } => "goal",
@@ -187,7 +212,13 @@ impl Replanner {
     /// Asks the planner thread for a path from `start` to `goal`; the answer lands in the
     /// slot returned. Replans run there, not in the `Act` that asked, so a robot's replan
     /// (milliseconds on a building's map) never holds up the calls of the others.
-    fn request(&self, start: [f64; 2], goal: [f64; 2], cfg: PlannerConfig) -> Arc<PlanSlot> {
+    fn request(
+        &self,
+        start: [f64; 2],
+        goal: [f64; 2],
+        cfg: PlannerConfig,
+        obstacles: Vec<[f64; 2]>,
+    ) -> Arc<PlanSlot> {
         let slot = Arc::new(PlanSlot::new());
         let job = PlanJob {
             map: self.map.clone(),
@@ -195,6 +226,7 @@ impl Replanner {
             start,
             goal,
             cfg,
+            obstacles,
             slot: slot.clone(),
         };
         if let Err(mpsc::SendError(job)) =
@@ -217,12 +249,16 @@ struct PlanJob {
     start: [f64; 2],
     goal: [f64; 2],
     cfg: PlannerConfig,
+    /// Points to plan round (map frame): the scan's returns after a stall.
+    obstacles: Vec<[f64; 2]>,
     slot: Arc<PlanSlot>,
 }
 
 impl PlanJob {
     fn run(self) {
-        let _ = self.slot.set(self.map.plan(self.radius, self.start, self.goal, &self.cfg));
+        let plan =
+            self.map.plan_avoiding(self.radius, self.start, self.goal, &self.cfg, &self.obstacles);
+        let _ = self.slot.set(plan);
     }
 }
 
@@ -300,12 +336,15 @@ impl RobotRoute {
     }
 
     /// The robot is at `pose`, `dt` s after the last cycle: the subgoal, and the rotation
-    /// shim's command while it holds the robot (within `omega_max`).
+    /// shim's command while it holds the robot (within `omega_max`). `scan_points` gives the
+    /// returns of its current scan (route frame), asked for only when a server-planned route
+    /// replans after a stall, to plan round what stopped it.
     pub fn step(
         &mut self,
         pose: Pose2,
         dt: f64,
         omega_max: f64,
+        scan_points: impl FnOnce() -> Vec<[f64; 2]>,
     ) -> (RouteStatus, Option<(f64, f64)>) {
         let mut g = self.guide.update(pose, dt);
         let arrived = self.pending.as_ref().and_then(|slot| slot.get().cloned());
@@ -322,9 +361,10 @@ impl RobotRoute {
             }
             self.replans += 1;
             g = self.guide.update(pose, 0.0);
-        } else if let (Some(_), Some(r), None) = (g.replan, &self.replanner, &self.pending) {
+        } else if let (Some(why), Some(r), None) = (g.replan, &self.replanner, &self.pending) {
             let cfg = self.guide.config().planner.clone();
-            self.pending = Some(r.request(pose.position(), self.guide.goal(), cfg));
+            let obstacles = if why == Replan::Stall { scan_points() } else { Vec::new() };
+            self.pending = Some(r.request(pose.position(), self.guide.goal(), cfg, obstacles));
         }
         let status = RouteStatus {
             subgoal: g.subgoal,
@@ -358,16 +398,73 @@ mod tests {
         let mut small = RobotRoute::new(SubgoalConfig::default(), 1.0, pts.clone());
         let mut big = RobotRoute::new(SubgoalConfig::default(), 2.0, pts);
         let at = Pose2::new(1.0, 0.0, 0.0);
-        let (s, shim) = small.step(at, 0.2, 1.0);
+        let (s, shim) = small.step(at, 0.2, 1.0, Vec::new);
         assert_eq!((s.subgoal, shim), ([2.5, 0.0], None));
         assert!((s.remaining_m - 9.0).abs() < 1e-12 && !s.replan_wanted);
-        assert_eq!(big.step(at, 0.2, 1.0).0.subgoal, [4.0, 0.0]);
+        assert_eq!(big.step(at, 0.2, 1.0, Vec::new).0.subgoal, [4.0, 0.0]);
         // Facing away from a new route: the shim turns it first.
         let mut fresh =
             RobotRoute::new(SubgoalConfig::default(), 1.0, vec![[0.0, 0.0], [10.0, 0.0]]);
-        let (_, shim) = fresh.step(Pose2::new(1.0, 0.0, 3.0), 0.2, 1.0);
+        let (_, shim) = fresh.step(Pose2::new(1.0, 0.0, 3.0), 0.2, 1.0, Vec::new);
         assert_eq!(shim, Some((0.0, -1.0)));
         assert_eq!(small.goal(), [10.0, 0.0]);
         assert_eq!(small.length_m(), 10.0);
+    }
+
+    /// A 5 × 3 m map_server map (5 cm pixels) split at x = 2.5 m by a wall with a 1 m door at
+    /// y = 1.8-2.8 m.
+    fn door_map() -> PlanMap {
+        let (w, h) = (100usize, 60usize);
+        let mut px = vec![254u8; w * h];
+        for row in 0..h {
+            for col in 0..w {
+                let y = (h - row) as f64 * 0.05 - 0.025;
+                let border = row < 2 || row >= h - 2 || col < 2 || col >= w - 2;
+                let wall = (49..=51).contains(&col) && !(1.8..2.8).contains(&y);
+                if border || wall {
+                    px[row * w + col] = 0;
+                }
+            }
+        }
+        let mut pgm = format!("P5\n{w} {h}\n255\n").into_bytes();
+        pgm.extend(px);
+        PlanMap::from_bytes("resolution: 0.05\norigin: [0.0, 0.0, 0.0]\n", &pgm).unwrap()
+    }
+
+    /// Holds the robot still at `at` until its route has replanned (on the planner thread),
+    /// with `returns` as its scan's returns; the status then, and how often the scan was read.
+    fn stall_until_replanned(route: &mut RobotRoute, returns: &[[f64; 2]]) -> (RouteStatus, usize) {
+        let at = Pose2::new(1.0, 1.0, 0.0);
+        let read = std::cell::Cell::new(0);
+        for _ in 0..1000 {
+            let (s, _) = route.step(at, 0.5, 1.0, || {
+                read.set(read.get() + 1);
+                returns.to_vec()
+            });
+            if s.replans > 0 {
+                return (s, read.get());
+            }
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+        panic!("no replan came back");
+    }
+
+    #[test]
+    fn a_stalled_robot_is_replanned_round_its_scans_returns_off_the_call() {
+        let map = Arc::new(door_map());
+        let cfg = SubgoalConfig { rotation_shim: false, ..SubgoalConfig::default() };
+        let plan =
+            || RobotRoute::planned(cfg.clone(), 1.0, map.clone(), 0.2, [1.0, 1.0], [4.0, 1.0]);
+        // Something in the doorway: the replan finds no way, and says so.
+        let doorway: Vec<[f64; 2]> = (0..=20).map(|k| [2.5, 1.8 + 0.05 * k as f64]).collect();
+        let mut route = plan().unwrap();
+        let (s, read) = stall_until_replanned(&mut route, &doorway);
+        assert!(s.blocked && s.replans == 1 && !s.replanning, "{s:?}");
+        assert_eq!(read, 1, "the scan is read once, when the stall asks for the replan");
+        // Something elsewhere: the same way is planned again.
+        let mut route = plan().unwrap();
+        let (s, _) = stall_until_replanned(&mut route, &[[4.5, 2.5]]);
+        assert!(!s.blocked && s.replans == 1, "{s:?}");
+        assert!(s.subgoal[1] > 1.0, "heads for the door again: {s:?}");
     }
 }
