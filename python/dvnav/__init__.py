@@ -11,7 +11,7 @@ Environments, rooms, rewards and the agent are dvnav's own Rust code (the extens
 
 import gymnasium
 
-from dvnav._core import __version__, default_env_config, room_names
+from dvnav._core import Route, __version__, default_env_config, room_names
 from dvnav.envs import NavEnv, NavVectorEnv
 from dvnav.policy import Policy
 
@@ -19,6 +19,7 @@ __all__ = [
     "NavEnv",
     "NavVectorEnv",
     "Policy",
+    "Route",
     "room_names",
     "default_env_config",
     "__version__",

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from dvnav import _core
+from dvnav._core import Route
 
 
 class Policy:
@@ -40,6 +41,40 @@ class Policy:
     def velocities(self, obs) -> np.ndarray:
         """Commands (v m/s, ω rad/s), shape (2,) or (n, 2)."""
         return self._run(self._core.velocities, obs)
+
+    def route(self, poses, **options) -> Route:
+        """A :class:`dvnav.Route` along ``poses`` ((x, y) points, the goal last: a planner's
+        path in the frame the robot's poses are in) for this policy's robot: its lookahead and
+        stray distance scaled by :attr:`mu`. ``options``: ``lookahead_m``, ``rotation_shim``,
+        ``replan_distance_m``, ``stall_s`` (the meta robot's, as ``[env.subgoals]``)."""
+        return Route([tuple(p[:2]) for p in poses], mu=self.mu, **options)
+
+    def follow(self, route: Route, obs, pose, dt: float | None = None):
+        """One control cycle along ``route``, as ``dvnav serve`` runs a robot's ``SetRoute``:
+        the robot at ``pose`` (x, y, yaw) with its observation ``obs`` (its own scan and
+        velocities; the goal fields are replaced by the subgoal). Returns ``((v, ω), step)``:
+        the command (the rotation shim's while it turns the robot towards a new route's
+        subgoal, zero once arrived, else the policy's) and the route's step (a dict:
+        ``subgoal``, ``goal_distance``, ``goal_angle``, ``remaining_m``, ``replan_wanted``
+        (ask your planner for a new path), ``arrived``, ``shim``). ``dt``: seconds since the
+        last cycle (default the model's control period)."""
+        env = self.env_config
+        step = route.step(
+            tuple(float(x) for x in pose),
+            env["dt"] if dt is None else float(dt),
+            self.velocity_bounds[1],
+            env["goal_tolerance"] * self.mu,
+        )
+        if step["arrived"]:
+            return np.zeros(2), step
+        if step["shim"] is not None:
+            return np.array(step["shim"], dtype=np.float64), step
+        x = np.array(obs, dtype=np.float32, copy=True)
+        if x.shape != (self.obs_dim,):
+            raise ValueError(f"observation has shape {x.shape}; expected ({self.obs_dim},)")
+        # The observation ends with goal distance, goal angle, v and ω.
+        x[-4], x[-3] = step["goal_distance"], step["goal_angle"]
+        return self.velocities(x), step
 
     def _run(self, fn, obs) -> np.ndarray:
         x = np.ascontiguousarray(obs, dtype=np.float32)

@@ -84,3 +84,52 @@ def test_observations_of_the_wrong_length_are_refused():
     policy = dvnav.Policy.load(str(MODEL))
     with pytest.raises(ValueError, match="this policy takes 544"):
         policy(np.zeros((2, 100), np.float32))
+
+
+def test_a_route_gives_the_lookahead_subgoal_and_refuses_bad_input():
+    route = dvnav.Route([(0.0, 0.0), (10.0, 0.0)])
+    s = route.step((1.0, 0.0, 0.0), 0.2, 1.0, 0.2)
+    assert s["subgoal"] == pytest.approx((2.5, 0.0))
+    assert (s["goal_distance"], s["goal_angle"]) == pytest.approx((1.5, 0.0))
+    assert s["remaining_m"] == pytest.approx(9.0)
+    assert not s["replan_wanted"] and not s["arrived"] and s["shim"] is None
+    # Twice the size: twice the lookahead; facing away from a new route, the shim turns first.
+    big = dvnav.Route([(0.0, 0.0), (10.0, 0.0)], mu=2.0)
+    assert big.step((1.0, 0.0, 3.0), 0.2, 1.0, 0.4)["shim"] == pytest.approx((0.0, -1.0))
+    assert (big.goal, big.length_m, big.lookahead_m) == ((10.0, 0.0), 10.0, 3.0)
+    # Far off the path: the robot's planner should plan again.
+    assert route.step((5.0, 3.0, 0.0), 0.2, 1.0, 0.2)["replan_wanted"]
+    for poses, says in [([], "poses"), ([(0.0, 0.0), (float("nan"), 1.0)], r"poses\[1\]\.x")]:
+        with pytest.raises(ValueError, match=says):
+            dvnav.Route(poses)
+    with pytest.raises(ValueError, match="lookahead_m"):
+        dvnav.Route([(1.0, 1.0)], lookahead_m=-1.0)
+    with pytest.raises(ValueError, match=r"pose\.yaw"):
+        route.step((1.0, 0.0, float("inf")), 0.2, 1.0, 0.2)
+
+
+def test_a_policy_follows_a_planners_path_to_a_goal_behind_walls():
+    import gymnasium
+
+    policy = dvnav.Policy.load(str(MODEL))
+    # Long tasks in a furnished generated room (a training seed); the environment plans each
+    # episode's path, which here stands for the robot's own planner, and shows the final goal.
+    env = gymnasium.make(
+        "dvnav/Nav-v0", room="generated:rooms:8001", seed=4, tasks="long", subgoals={"follow": False}
+    )
+    reached, followed = 0, 0
+    for _ in range(6):
+        obs, info = env.reset()
+        core = env.unwrapped
+        path = core._core.planned_path
+        route = policy.route(path)
+        assert route.goal == pytest.approx(info["goal"])
+        for _ in range(1000):
+            (v, w), step = policy.follow(route, obs, core.pose)
+            followed += step["shim"] is None and not step["arrived"]
+            obs, _, terminated, truncated, info = env.unwrapped.step_velocity(v, w)
+            if terminated or truncated:
+                reached += info.get("is_success", False)
+                break
+    assert followed > 100
+    assert reached >= 5, f"{reached} of 6 goals reached along the path"
