@@ -24,6 +24,13 @@ class Cycle:
     # whether the controller asks for a new plan (the robot strayed or stalled).
     subgoal: tuple[float, float] | None = None
     replan_wanted: bool = False
+    # On a route dvnav serve planned (/map and /goal_pose): the path left (m), its replans so
+    # far, whether one is under way (the robot follows the old path meanwhile) and whether the
+    # last found no way (the robot then heads for the goal itself).
+    remaining_m: float | None = None
+    replans: int = 0
+    replanning: bool = False
+    blocked: bool = False
 
 
 STOP = (0.0, 0.0)
@@ -181,4 +188,13 @@ class BridgeCore:
             if self.route:
                 self._set_route([])
             return Cycle(*STOP, stop="arrived", arrived=True)
-        return Cycle(reply.v, reply.omega, subgoal=subgoal, replan_wanted=reply.replan_wanted)
+        return Cycle(
+            reply.v,
+            reply.omega,
+            subgoal=subgoal,
+            replan_wanted=reply.replan_wanted,
+            remaining_m=reply.remaining_m if reply.following_route else None,
+            replans=reply.replans,
+            replanning=reply.replanning,
+            blocked=reply.blocked,
+        )

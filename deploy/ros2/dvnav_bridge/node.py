@@ -77,6 +77,7 @@ def main(args=None) -> None:
             self.subgoal = self.create_publisher(PointStamped, "dvnav/subgoal", 10)
             self._Point, self._PointStamped = Point, PointStamped
             self._replan_logged = False
+            self._replans_seen = 0
             self.create_timer(period, self._tick)
             self._last_stop = None
             self._Twist, self._Vector3 = Twist, Vector3
@@ -125,6 +126,10 @@ def main(args=None) -> None:
                 m.header.stamp = self.get_clock().now().to_msg()
                 m.point = self._Point(x=c.subgoal[0], y=c.subgoal[1], z=0.0)
                 self.subgoal.publish(m)
+            if c.replans > self._replans_seen:
+                left = "no way left: heading for the goal itself" if c.blocked else f"{c.remaining_m:.1f} m left"
+                self.get_logger().info(f"dvnav serve replanned the route ({c.replans} so far): {left}")
+            self._replans_seen = c.replans
             if c.replan_wanted and not self._replan_logged:
                 self.get_logger().warn("the robot strayed from the plan or stalled: replan wanted")
                 self._replan_logged = True

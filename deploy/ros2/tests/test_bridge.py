@@ -1,5 +1,7 @@
 """The bridge's control cycle against a real `dvnav serve`, fed real ROS 2 messages."""
 
+import time
+
 import grpc
 import numpy as np
 import pytest
@@ -135,6 +137,15 @@ def test_with_a_map_the_server_plans_each_goal(server):
     assert b.route
     c = b.step(0.1)
     assert c.stop is None and c.subgoal is not None and c.subgoal[1] > 2.0, c
+    assert c.remaining_m > 6.0 and c.replans == 0 and not c.blocked, c
+    # Held where it is (each Act a control period on), the robot stalls: the server replans
+    # on its planner thread, round the scan's returns, and a later cycle reports it.
+    for _ in range(400):
+        c = b.step(0.1)
+        if c.replans:
+            break
+        time.sleep(0.005)
+    assert c.replans == 1 and not c.replanning and c.stop is None, c
     # A goal inside the wall is refused by the server, naming it.
     with pytest.raises(grpc.RpcError) as e:
         b.on_goal(through_cdr(goal_pose(5.0, 2.0)))
