@@ -27,14 +27,21 @@ def main():
     p.add_argument("--radii", default="0.2,0.4,0.6")
     p.add_argument("--episodes", type=int, default=20)
     p.add_argument("--lookaheads", default="1.0,1.5,2.0,3.0")
+    p.add_argument("--margins", default="",
+                   help="instead of the lookaheads: planner margins M (m) to try, each with the default "
+                        "lookahead and shim (dvnav eval --planner-margin M)")
     a = p.parse_args()
     lo, hi = (int(x) for x in a.seeds.split(":"))
     if hi > 9000:
         sys.exit("--seeds: seeds 9000 and above are held out; tune below 9000")
 
-    settings = [(f"L = {l} m, shim", ["--lookahead", l]) for l in a.lookaheads.split(",")]
-    settings += [(f"L = {l} m, no shim", ["--lookahead", l, "--no-rotation-shim"]) for l in a.lookaheads.split(",")]
-    settings.append(("mapless", ["--subgoals", "none"]))
+    if a.margins:
+        settings = [(f"margin {m} m", ["--planner-margin", m]) for m in a.margins.split(",")]
+    else:
+        settings = [(f"L = {l} m, shim", ["--lookahead", l]) for l in a.lookaheads.split(",")]
+        settings += [(f"L = {l} m, no shim", ["--lookahead", l, "--no-rotation-shim"])
+                     for l in a.lookaheads.split(",")]
+        settings.append(("mapless", ["--subgoals", "none"]))
     print("| setting | radius (m) | episodes | success | collision | timeout | ω reversals |")
     print("|---|---|---|---|---|---|---|")
     for name, extra in settings:

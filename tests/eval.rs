@@ -235,6 +235,10 @@ fn bad_input_fails_with_a_clear_message() {
     assert!(e.contains("--lookahead") && e.contains("above 0"), "{e}");
     let e = stderr(&eval(&["--checkpoint", ok, "--lookahead", "1.0"]));
     assert!(e.contains("--lookahead") && e.contains("--subgoals planner"), "{e}");
+    let e = stderr(&eval(&["--checkpoint", ok, "--tasks", "long", "--planner-margin=-0.1"]));
+    assert!(e.contains("--planner-margin") && e.contains("≥ 0"), "{e}");
+    let e = stderr(&eval(&["--checkpoint", ok, "--planner-margin", "0.1"]));
+    assert!(e.contains("--planner-margin") && e.contains("--subgoals planner"), "{e}");
     let e = stderr(&eval(&["--checkpoint", ck, "--tasks", "medium"]));
     assert!(e.contains("--tasks") && e.contains("long"), "{e}");
 }

@@ -134,6 +134,10 @@ pub struct EvalArgs {
     /// With subgoals: no rotation shim (the agent drives from the first cycle after a plan).
     #[arg(long)]
     pub no_rotation_shim: bool,
+    /// With subgoals: clearance (m) the planner keeps beyond the robot's bounding radius
+    /// (`[env.subgoals.planner] margin_m`; 0 by default).
+    #[arg(long, value_name = "M")]
+    pub planner_margin: Option<f64>,
     /// Episodes stepped at once; the policy sees them as one batch.
     #[arg(long, default_value_t = 64)]
     pub batch: usize,
@@ -266,16 +270,28 @@ fn eval_env(args: &EvalArgs, cfg: &Config) -> anyhow::Result<dvnav_config::EnvCo
             follow_share: 1.0,
             lookahead_m: args.lookahead.unwrap_or(base.lookahead_m),
             rotation_shim: base.rotation_shim && !args.no_rotation_shim,
+            planner: dvnav_sim::planner::PlannerConfig {
+                margin_m: args.planner_margin.unwrap_or(base.planner.margin_m),
+                ..base.planner.clone()
+            },
             ..base
         }
     });
     anyhow::ensure!(
-        plan || (args.lookahead.is_none() && !args.no_rotation_shim),
-        "--lookahead and --no-rotation-shim are for --subgoals planner (or --tasks long)"
+        plan || (args.lookahead.is_none()
+            && !args.no_rotation_shim
+            && args.planner_margin.is_none()),
+        "--lookahead, --no-rotation-shim and --planner-margin are for --subgoals planner (or --tasks long)"
     );
     if let Some(s) = &env.subgoals {
         s.check().map_err(|(k, r)| {
-            let k = if k.ends_with("lookahead_m") { "--lookahead".to_string() } else { k };
+            let k = if k.ends_with("lookahead_m") {
+                "--lookahead".to_string()
+            } else if k.ends_with("planner.margin_m") {
+                "--planner-margin".to_string()
+            } else {
+                k
+            };
             anyhow::anyhow!("{k}: {r}")
         })?;
     }
