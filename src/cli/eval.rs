@@ -20,6 +20,10 @@ use std::time::Instant;
 /// Evaluate a policy checkpoint: success / collision / timeout rates, the paper's score S and
 /// time to goal per room, the evaluation routes, the gate test (which way each robot size
 /// went) or the dynamic scenario.
+/// `--tasks long`'s step-limit factor ([`dvnav_sim::subgoal::SubgoalConfig::time_limit_factor`]):
+/// the slack the paper's 400 steps leave a 10 m path in its rooms.
+const LONG_TASK_TIME_LIMIT_FACTOR: f64 = 4.0;
+
 #[derive(Args, Debug)]
 pub struct EvalArgs {
     /// A checkpoint directory (`RUN/checkpoints/ckpt-N`), a model directory, or a
@@ -138,6 +142,12 @@ pub struct EvalArgs {
     /// (`[env.subgoals.planner] margin_m`; 0 by default).
     #[arg(long, value_name = "M")]
     pub planner_margin: Option<f64>,
+    /// With a planned route: each episode's step limit is at least K times the steps its
+    /// planned path takes at v_max (`[env.subgoals] time_limit_factor`). Default: 4 for
+    /// --tasks long (a 30 m route through a building gets the time it needs), else the
+    /// checkpoint's (0: `env.max_steps` for every episode).
+    #[arg(long, value_name = "K")]
+    pub time_limit_factor: Option<f64>,
     /// Episodes stepped at once; the policy sees them as one batch.
     #[arg(long, default_value_t = 64)]
     pub batch: usize,
@@ -274,14 +284,23 @@ fn eval_env(args: &EvalArgs, cfg: &Config) -> anyhow::Result<dvnav_config::EnvCo
                 margin_m: args.planner_margin.unwrap_or(base.planner.margin_m),
                 ..base.planner.clone()
             },
+            time_limit_factor: args.time_limit_factor.unwrap_or(
+                if args.tasks == Some(Tasks::Long) && base.time_limit_factor == 0.0 {
+                    LONG_TASK_TIME_LIMIT_FACTOR
+                } else {
+                    base.time_limit_factor
+                },
+            ),
             ..base
         }
     });
     anyhow::ensure!(
         plan || (args.lookahead.is_none()
             && !args.no_rotation_shim
-            && args.planner_margin.is_none()),
-        "--lookahead, --no-rotation-shim and --planner-margin are for --subgoals planner (or --tasks long)"
+            && args.planner_margin.is_none()
+            && args.time_limit_factor.is_none()),
+        "--lookahead, --no-rotation-shim, --planner-margin and --time-limit-factor are for \
+         --subgoals planner (or --tasks long)"
     );
     if let Some(s) = &env.subgoals {
         s.check().map_err(|(k, r)| {
@@ -289,6 +308,8 @@ fn eval_env(args: &EvalArgs, cfg: &Config) -> anyhow::Result<dvnav_config::EnvCo
                 "--lookahead".to_string()
             } else if k.ends_with("planner.margin_m") {
                 "--planner-margin".to_string()
+            } else if k.ends_with("time_limit_factor") {
+                "--time-limit-factor".to_string()
             } else {
                 k
             };

@@ -93,6 +93,9 @@ pub struct NavEnv {
     v: f64,
     omega: f64,
     steps: u32,
+    /// This episode's step limit: `max_steps`, or more for a long planned route
+    /// ([`crate::subgoal::SubgoalConfig::time_limit_factor`]).
+    step_limit: u32,
     episode_return: f64,
     done: Option<Outcome>,
     /// Distance from the robot's centre to the goal at the current pose (d_t).
@@ -191,6 +194,7 @@ impl NavEnv {
             v: 0.0,
             omega: 0.0,
             steps: 0,
+            step_limit: cfg.max_steps,
             episode_return: 0.0,
             done: None,
             goal_distance: 0.0,
@@ -435,6 +439,15 @@ impl NavEnv {
                 c.follow && (c.follow_share >= 1.0 || robust_rng.random::<f64>() < c.follow_share);
             RouteState::begin(c, follow, &self.room, self.radius, scale, start, goal)
         });
+        self.step_limit = self.cfg.max_steps;
+        if let (Some(c), Some(len)) =
+            (&self.cfg.subgoals, self.route.as_ref().and_then(|r| r.stats().planned_length_m))
+            && c.time_limit_factor > 0.0
+        {
+            // The planned path driven at v_max, times the factor.
+            let steps = c.time_limit_factor * len / (self.cfg.v_max * self.cfg.dt);
+            self.step_limit = self.step_limit.max(steps.ceil() as u32);
+        }
         self.update_scan();
         self.history.clear();
         if self.perturb.latency_steps > 0 {
@@ -599,7 +612,7 @@ impl NavEnv {
             // In the meta robot's units, as the agent observes distances.
             let progress = (d_prev - d_next) / self.mu;
             let r = rw.progress * progress - rw.time_penalty - rw.omega_change * change;
-            (r, (self.steps >= self.cfg.max_steps).then_some(Outcome::Timeout))
+            (r, (self.steps >= self.step_limit).then_some(Outcome::Timeout))
         };
         let reward = reward as f32;
         self.episode_return += reward as f64;

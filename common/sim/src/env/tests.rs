@@ -1015,3 +1015,48 @@ fn long_tasks_are_drawn_where_the_planner_reaches() {
         assert_eq!(env.start().position()[0] < 0.0, env.goal()[0] < 0.0);
     }
 }
+
+#[test]
+fn a_long_route_gets_time_in_proportion_to_its_path() {
+    // The 30 m hall of the test above, long tasks; a robot that never moves times out at the
+    // episode's own limit.
+    let mut spec = RoomSpec::empty("hall", 30.0);
+    spec.obstacles.push(ObstacleSpec::Box {
+        center: [0.0, 0.0],
+        half_extents: [0.1, 12.0],
+        angle: 0.0,
+    });
+    let room = Arc::new(Room::new(spec));
+    let long = |factor: f64| EnvConfig {
+        min_start_goal_distance: 8.0,
+        max_start_goal_distance: 10.0,
+        max_path_ratio: 0.0,
+        subgoals: Some(crate::subgoal::SubgoalConfig {
+            time_limit_factor: factor,
+            ..Default::default()
+        }),
+        ..cfg()
+    };
+    let mut fixed = NavEnv::new(room.clone(), &long(0.0), 5);
+    fixed.reset();
+    assert_eq!(fixed.step_limit, fixed.cfg.max_steps);
+    let mut env = NavEnv::new(room, &long(4.0), 5);
+    let mut longer = 0;
+    for _ in 0..20 {
+        env.reset();
+        let len = env.route_stats().unwrap().planned_length_m.unwrap();
+        let want = (4.0 * len / (env.cfg.v_max * env.cfg.dt)).ceil() as u32;
+        assert_eq!(env.step_limit, want.max(env.cfg.max_steps), "path {len} m");
+        longer += usize::from(env.step_limit > env.cfg.max_steps);
+    }
+    assert!(longer > 0, "some routes round the wall need more than max_steps");
+    let limit = env.step_limit;
+    let mut steps = 0;
+    let outcome = loop {
+        steps += 1;
+        if let Some(o) = env.step(0.0, 0.0).done {
+            break o;
+        }
+    };
+    assert_eq!((outcome, steps), (Outcome::Timeout, limit));
+}
