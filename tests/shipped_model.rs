@@ -169,8 +169,9 @@ fn held_out_sample_as_documented() {
 
 /// docs/results.md, "Through a whole building (issue 28)": long tasks in Willow Garage (goals
 /// 5-10 m away, any route the planner finds) followed along the planner's path, against the
-/// mapless agent (documented 97 / 96 / 92 % at R = 0.2 / 0.3 / 0.4 over 100 episodes; these 40
-/// give 97.5 and 90.0 % with the planner, 62.5 and 60.0 % mapless).
+/// mapless agent (documented 100 / 98 / 96 % at R = 0.2 / 0.3 / 0.4 over 100 episodes, each
+/// task's time limit scaled by its route; these 40 give 100 and 97.5 % with the planner, 70.0
+/// and 62.5 % mapless).
 #[test]
 fn long_tasks_in_willow_with_subgoals_as_documented() {
     let willow = format!("{}/maps/willow.yaml", env!("CARGO_MANIFEST_DIR"));
@@ -185,7 +186,7 @@ fn long_tasks_in_willow_with_subgoals_as_documented() {
         rows.iter().map(|r| r["success_rate"].as_f64().unwrap()).sum::<f64>() / rows.len() as f64
     };
     for r in &planner {
-        assert!(r["success_rate"].as_f64().unwrap() >= 0.85, "{r}");
+        assert!(r["success_rate"].as_f64().unwrap() >= 0.9, "{r}");
         assert!(r["blocked_rate"].as_f64().unwrap() <= 0.05, "{r}");
     }
     assert!(rate(&planner) > rate(&mapless), "{planner:?} vs {mapless:?}");
