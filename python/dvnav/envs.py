@@ -15,9 +15,10 @@ beams as ``dvnav serve`` does.
 ``tasks="long"`` draws goals 5-10 m away by any route (``"local"``: 2-5 m, a path at most 1.5x
 the straight line), as ``dvnav eval --tasks``; ``subgoals=True`` (or the ``[env.subgoals]`` keys
 as a dict) plans each episode's path for the robot and the observation's goal is the lookahead
-point on it (the progress reward follows the path). ``info["subgoal"]`` gives that point, and
-``info["shim_command"]`` the rotation shim's (v, omega) while it would hold the robot (dvnav
-eval and dvnav serve apply it; a Gymnasium agent decides itself).
+point on it (the progress reward follows the path); with long tasks each episode's time limit is
+then at least 4 times its planned path at v_max, as in ``dvnav eval``. ``info["subgoal"]``
+gives that point, and ``info["shim_command"]`` the rotation shim's (v, omega) while it would
+hold the robot (dvnav eval and dvnav serve apply it; a Gymnasium agent decides itself).
 """
 
 from __future__ import annotations
@@ -53,6 +54,10 @@ def _spaces(core) -> tuple[spaces.Box, spaces.Box]:
     return obs, act
 
 
+# `dvnav eval --tasks long`'s step-limit factor: at least 4 times the planned path at v_max.
+LONG_TASK_TIME_LIMIT_FACTOR = 4.0
+
+
 def _random_seed() -> int:
     return secrets.randbits(63)
 
@@ -72,6 +77,9 @@ def _core_kwargs(render_mode, footprint, config, env_config) -> dict[str, Any]:
         env_config["subgoals"] = {}
     elif subgoals is False or subgoals is None:
         env_config.pop("subgoals", None)
+    if tasks == "long" and isinstance(env_config.get("subgoals"), dict):
+        # As `dvnav eval --tasks long`: a route's time limit grows with its planned path.
+        env_config["subgoals"] = {"time_limit_factor": LONG_TASK_TIME_LIMIT_FACTOR, **env_config["subgoals"]}
     sensor = env_config.get("sensor")
     if isinstance(sensor, (str, os.PathLike)):
         try:

@@ -181,6 +181,7 @@ def test_long_tasks_with_subgoals_observe_the_lookahead_point():
     assert obs[-4] == pytest.approx(math.hypot(sub[0] - start[0], sub[1] - start[1]), abs=1e-4)
     assert obs[-4] <= 1.5 + 1e-4
     assert env.unwrapped.env_config["subgoals"]["lookahead_m"] == 1.5
+    assert env.unwrapped.env_config["subgoals"]["time_limit_factor"] == 4.0
     _, _, _, _, info = env.step(np.zeros(2, np.float32))
     assert "subgoal" in info and "shim_command" in info
     plain = gymnasium.make("dvnav/Nav-v0", room="env3", seed=2)
