@@ -272,14 +272,20 @@ impl Room {
     /// [`Room::reach`] on the planner's raster ([`Room::planning_map`]): where the planner
     /// can take a disc of `radius`. Computed on first use for each radius and kept.
     pub fn planning_reach(&self, radius: f64) -> Arc<Reach> {
-        if Raster::for_planning(self.spec.side) == Raster::for_side(self.spec.side) {
+        if !self.plans_on_own_raster() {
             return self.reach(radius);
         }
         reach_of(&self.planning_reach, self.planning_map(), radius)
     }
 
+    /// Whether the planner's raster is finer than the task-sampling one (a room over 10 m).
+    fn plans_on_own_raster(&self) -> bool {
+        Raster::for_planning(self.spec.side) != Raster::for_side(self.spec.side)
+    }
+
     /// The room's static shapes rastered with each cell's clearance ([`crate::grid`]): computed
-    /// on first use and kept. The path planner ([`crate::planner`]) searches it.
+    /// on first use and kept. Tasks are drawn on it; the planner searches
+    /// [`Room::planning_map`].
     pub fn clearance_map(&self) -> &ClearanceMap {
         self.clearance_map.get_or_init(|| ClearanceMap::of_room(&self.spec))
     }
@@ -290,11 +296,12 @@ impl Room {
     /// [`Room::clearance_map`] a 58 m building is 14 cm cells, and each conservative cell
     /// diagonal narrows every gap). The same map as `clearance_map` where the rasters agree.
     pub fn planning_map(&self) -> &ClearanceMap {
-        let raster = Raster::for_planning(self.spec.side);
-        if raster == Raster::for_side(self.spec.side) {
+        if !self.plans_on_own_raster() {
             return self.clearance_map();
         }
-        self.planning_map.get_or_init(|| ClearanceMap::of_room_on(&self.spec, raster))
+        self.planning_map.get_or_init(|| {
+            ClearanceMap::of_room_on(&self.spec, Raster::for_planning(self.spec.side))
+        })
     }
 
     /// The data this room was built from.

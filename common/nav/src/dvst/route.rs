@@ -17,7 +17,7 @@ use dvnav_sim::grid::{ClearanceMap, Raster};
 use dvnav_sim::grid_map::{self, MapFrame};
 use dvnav_sim::planner::{self, PlanError, PlannedPath, PlannerConfig};
 use dvnav_sim::subgoal::{Replan, RouteGuide, SubgoalConfig};
-use std::sync::{Arc, Mutex, OnceLock, mpsc};
+use std::sync::{Arc, OnceLock, mpsc};
 
 /// The largest map file text `SetMap` takes (bytes).
 pub const MAX_MAP_YAML: usize = 64 * 1024;
@@ -229,9 +229,7 @@ impl Replanner {
             obstacles,
             slot: slot.clone(),
         };
-        if let Err(mpsc::SendError(job)) =
-            planner_thread().lock().unwrap_or_else(|e| e.into_inner()).send(job)
-        {
+        if let Err(mpsc::SendError(job)) = planner_thread().send(job) {
             // No planner thread (it could not be started): plan here.
             job.run();
         }
@@ -265,8 +263,8 @@ impl PlanJob {
 /// The server's planner thread (Nav2's planner server): one, started on the first replan,
 /// taking replans in the order asked. One is plenty: a replan on Willow Garage takes 4 ms at
 /// p50 (`dvnav bench plan`), and 100 robots at 10 Hz straying every 5 s ask for 20 a second.
-fn planner_thread() -> &'static Mutex<mpsc::Sender<PlanJob>> {
-    static SENDER: OnceLock<Mutex<mpsc::Sender<PlanJob>>> = OnceLock::new();
+fn planner_thread() -> &'static mpsc::Sender<PlanJob> {
+    static SENDER: OnceLock<mpsc::Sender<PlanJob>> = OnceLock::new();
     SENDER.get_or_init(|| {
         let (tx, rx) = mpsc::channel::<PlanJob>();
         // If the thread cannot start, `rx` is dropped with it and each send fails: the caller
@@ -274,7 +272,7 @@ fn planner_thread() -> &'static Mutex<mpsc::Sender<PlanJob>> {
         let _ = std::thread::Builder::new()
             .name("dvnav-planner".into())
             .spawn(move || rx.into_iter().for_each(PlanJob::run));
-        Mutex::new(tx)
+        tx
     })
 }
 
