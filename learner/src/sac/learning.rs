@@ -69,9 +69,12 @@ pub fn soft_bellman_target(
 
 /// Sum of the two critics' mean squared errors against the target.
 pub fn critic_loss(q1: &Tensor, q2: &Tensor, target: &Tensor) -> Result<Tensor> {
-    let l1 = (q1 - target)?.sqr()?.mean_all()?;
-    let l2 = (q2 - target)?.sqr()?.mean_all()?;
-    l1 + l2
+    td_loss(q1, target)? + td_loss(q2, target)?
+}
+
+/// L(φi) = mean((Q_φi(s, a) − y)²), one critic's part of [`critic_loss`].
+pub fn td_loss(q: &Tensor, target: &Tensor) -> Result<Tensor> {
+    (q - target)?.sqr()?.mean_all()
 }
 
 /// mean(α log π(ã|s) − min(Q1, Q2)(s, ã)) + λ Σ‖W‖² over the policy's weights.
@@ -323,10 +326,15 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
         if let Some(metrics) = self.captured_update(batch, noise)? {
             return Ok(metrics);
         }
-        let shards =
-            shards::split(batch, noise.view(), self.action_dim, self.shard_count(), &self.device)?;
+        let split = |n| shards::split(batch, noise.view(), self.action_dim, n, &self.device);
+        let shards = split(self.shard_count())?;
+        let groups = match shards::twin_groups(shards.len(), batch.size) {
+            n if n == shards.len() => None,
+            n => Some(split(n)?),
+        };
+        let groups = groups.as_deref().unwrap_or(&shards);
         let policy = self.policy_due();
-        let losses = self.step_networks(&shards, &self.nets.alpha(), policy, None)?;
+        let losses = self.step_networks(&shards, groups, &self.nets.alpha(), policy, None)?;
         self.last.critic_loss = sum_of(&losses.critic)?;
         self.last.q_mean = sum_of(&losses.q_mean)?;
         if let Some((actor, entropy)) = &losses.policy {
@@ -368,14 +376,16 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
         self.updates += 1;
     }
 
-    /// The update's arithmetic on `shards`: both critics, then (when `policy`) the policy, α
-    /// and θ̄, then the targets. Counts nothing on the host and reads nothing back, so that
+    /// The update's arithmetic on `shards`, the minibatch's row shards, and `groups`, the
+    /// same rows in [`shards::twin_groups`] groups, each a whole number of consecutive shards:
+    /// both critics, then (when `policy`) the policy, α and θ̄, then the targets. Counts nothing on the host and reads nothing back, so that
     /// it can be captured as a CUDA graph: `corrections` (the critics', policy's and α's Adam
     /// bias corrections, 6 values on the device) replace the optimizers' own step counts when
     /// given. Returns the losses as tensors.
     fn step_networks(
         &mut self,
         shards: &[shards::Shard],
+        groups: &[shards::Shard],
         alpha: &impl Temperature,
         policy: bool,
         corrections: Option<&Tensor>,
@@ -395,27 +405,52 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
             None => opt.step_shards(&stores, workers),
         };
 
-        // Critics: each shard's loss is its share of L(φ1) + L(φ2) over the batch.
-        let parts = self.workers.map(shards, |s| {
+        // Critics, in three steps over the workers: (1) the policy's next actions ã′ ~ π(·|s′)
+        // on the row shards; (2) each target critic on each row group, a job of its own, then
+        // y per group; (3) each critic's loss, its group's share of L(φi), and its backward
+        // pass, again a job per critic and group. The twins are independent networks, so a
+        // job runs one whole network over its rows: cut into row shards instead, every worker
+        // repeats each weight's work (packing it for the products, copying its gradient), and
+        // two workers did 1.2x the arithmetic of one (docs/results.md, "Twin critics").
+        let next = workers.map(shards, |s| {
             let next = nets.actor.net.sample_with_noise(&s.next_obs, &s.eps_next)?;
-            let next_action = next.action.detach();
-            let target = soft_bellman_target(
-                &s.rewards,
-                &s.terminated,
-                &s.discounts,
-                &nets.target1.net.q(&s.next_obs, &next_action)?.detach(),
-                &nets.target2.net.q(&s.next_obs, &next_action)?.detach(),
-                &next.log_prob.detach(),
-                alpha,
-            )?;
-            let q1 = nets.critic1.net.q(&s.obs, &s.actions)?;
-            let q2 = nets.critic2.net.q(&s.obs, &s.actions)?;
-            let loss = share_of(critic_loss(&q1, &q2, &target)?, s.share)?;
-            let q_mean = share_of(q1.mean_all()?, s.share)?;
-            Ok((loss.backward()?, loss.detach(), q_mean.detach()))
+            Ok((next.action.detach(), next.log_prob.detach()))
         })?;
-        let (stores, critic, q_mean) = unzip3(parts);
+        let next = shards::join_rows(next, groups.len())?;
+        let targets = [&nets.target1.net, &nets.target2.net];
+        let target_q = workers.run(2 * groups.len(), |job| {
+            let (k, i) = (job / 2, job % 2);
+            Ok(targets[i].q(&groups[k].next_obs, &next[k].0)?.detach())
+        })?;
+        let y = groups
+            .iter()
+            .enumerate()
+            .map(|(k, g)| {
+                let (q1, q2) = (&target_q[2 * k], &target_q[2 * k + 1]);
+                soft_bellman_target(
+                    &g.rewards,
+                    &g.terminated,
+                    &g.discounts,
+                    q1,
+                    q2,
+                    &next[k].1,
+                    alpha,
+                )
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let critics = [&nets.critic1.net, &nets.critic2.net];
+        let parts = workers.run(2 * groups.len(), |job| {
+            let (k, i) = (job / 2, job % 2);
+            let g = &groups[k];
+            let q = critics[i].q(&g.obs, &g.actions)?;
+            let loss = share_of(td_loss(&q, &y[k])?, g.share)?;
+            Ok((loss.backward()?, loss.detach(), share_of(q.mean_all()?, g.share)?.detach()))
+        })?;
+        let (stores, twin_losses, twin_q) = unzip3(parts);
         step_shards(&mut self.critic_opt, stores, 0)?;
+        // Per group: L(φ1) + L(φ2), and the mean of Q1.
+        let critic = twin_losses.chunks(2).map(|l| &l[0] + &l[1]).collect::<Result<Vec<_>>>()?;
+        let q_mean = twin_q.into_iter().step_by(2).collect();
         let mut losses = StepLosses { critic, q_mean, policy: None };
 
         // Policy and temperature, delayed.
@@ -740,7 +775,7 @@ mod tests {
             let corrections = Tensor::new(&replay.next_corrections()[..], &Device::Cpu).unwrap();
             let alpha = replay.nets.log_alpha.as_tensor().exp().unwrap();
             let policy = replay.policy_due();
-            replay.step_networks(&shards, &alpha, policy, Some(&corrections)).unwrap();
+            replay.step_networks(&shards, &shards, &alpha, policy, Some(&corrections)).unwrap();
             replay.count_replayed(policy);
         }
         assert_eq!(replay.updates(), eager.updates());
@@ -763,9 +798,10 @@ mod tests {
 
     #[test]
     fn an_update_shared_out_over_threads_is_the_same_update() {
-        // 40 rows in 1, 2 or 3 shards: the same metrics and weights up to float rounding.
+        // 64 rows in 1, 2, 3 or 4 shards (the critics' twin jobs on 1, 1, 3 and 2 row groups):
+        // the same metrics and weights up to float rounding.
         let cfg = dvnav_config::Config::default();
-        let batch = varied_batch(&cfg, 40);
+        let batch = varied_batch(&cfg, 64);
         let weights = |l: &SacLearner| -> Vec<f32> {
             let mut all = Vec::new();
             for (_, t) in l.state_tensors().unwrap() {
@@ -784,7 +820,7 @@ mod tests {
             (metrics, weights(&l))
         };
         let (m1, w1) = run(1);
-        for threads in [2, 3] {
+        for threads in [2, 3, 4] {
             let (m, w) = run(threads);
             for (a, b) in m1.iter().zip(&m) {
                 for (x, y) in [

@@ -5,6 +5,11 @@
 //! update up to float rounding); terms of the batch as a whole (the policy's L2) go to the first
 //! shard only.
 //!
+//! The critics' update cuts finer: the twin critics are independent networks, so each critic on
+//! each row group ([`twin_groups`]: pairs of shards, up to [`MAX_GROUP_ROWS`] rows) is a job of
+//! its own, and on two workers each runs one whole critic over the batch instead of both
+//! critics over half of it.
+//!
 //! Why not candle's own threads: they split each tensor operation, and an update is thousands of
 //! small ones, so they synchronize thousands of times per update (with spin barriers in candle
 //! 0.11), and more threads made an update slower (docs/results.md, "Learner threads"). A shard is
@@ -93,6 +98,36 @@ pub fn split(
         .collect()
 }
 
+/// Row groups the critics' update is cut into for `shards` row shards ([`split`] with this
+/// count gives groups of whole consecutive shards): each critic of the twin pair is a job of
+/// its own on every group, so half as many groups as shards keep an even number of workers
+/// busy with whole networks; an odd number keeps a group per shard.
+pub fn twin_groups(shards: usize, rows: usize) -> usize {
+    let halved = shards.is_multiple_of(2) && rows / (shards / 2) <= MAX_GROUP_ROWS;
+    if halved { shards / 2 } else { shards }
+}
+
+/// Most rows a twin group gets when it joins two shards.
+pub const MAX_GROUP_ROWS: usize = 128;
+
+/// The shards' rows of `(actions, log_probs)`-like pairs joined into `groups` groups of
+/// consecutive shards, as [`twin_groups`] cuts them.
+pub fn join_rows(parts: Vec<(Tensor, Tensor)>, groups: usize) -> Result<Vec<(Tensor, Tensor)>> {
+    if groups == 0 || !parts.len().is_multiple_of(groups) {
+        candle_core::bail!("{} row shards do not make {groups} equal groups", parts.len());
+    }
+    if groups == parts.len() {
+        return Ok(parts);
+    }
+    parts
+        .chunks(parts.len() / groups)
+        .map(|chunk| {
+            let (a, b): (Vec<Tensor>, Vec<Tensor>) = chunk.iter().cloned().unzip();
+            Ok((Tensor::cat(&a, 0)?, Tensor::cat(&b, 0)?))
+        })
+        .collect()
+}
+
 /// The learner's worker threads: one blocking rayon pool of its own, or none for one thread.
 pub struct Workers {
     pool: Option<rayon::ThreadPool>,
@@ -146,6 +181,17 @@ impl Workers {
 }
 
 impl Workers {
+    /// `f(i)` for every `i` in `0..n`, side by side on the workers, each index a job of its
+    /// own; results in index order.
+    pub fn run<T: Send>(&self, n: usize, f: impl Fn(usize) -> Result<T> + Sync) -> Result<Vec<T>> {
+        match &self.pool {
+            Some(pool) if n > 1 => {
+                pool.install(|| (0..n).into_par_iter().with_max_len(1).map(&f).collect())
+            }
+            _ => (0..n).map(f).collect(),
+        }
+    }
+
     /// `f(i)` for every `i` in `0..n`, side by side on the workers, each index a job of its
     /// own (the jobs are per-variable optimizer steps of very different sizes); stops at the
     /// first error.
@@ -259,6 +305,34 @@ mod tests {
     }
 
     #[test]
+    fn twin_groups_join_pairs_of_shards_up_to_the_row_cap() {
+        assert_eq!(twin_groups(1, 128), 1);
+        assert_eq!(twin_groups(2, 128), 1);
+        assert_eq!(twin_groups(3, 128), 3);
+        assert_eq!(twin_groups(4, 128), 2);
+        // Two shards of 128 rows stay two groups: a whole batch of 256 per job ran slower.
+        assert_eq!(twin_groups(2, 256), 2);
+        assert_eq!(twin_groups(4, 256), 2);
+    }
+
+    #[test]
+    fn joined_rows_are_the_groups_rows_in_order() {
+        let (b, noise) = batch(64, 3);
+        let shards = split(&b, noise.view(), 2, 4, &Device::Cpu).unwrap();
+        let groups = split(&b, noise.view(), 2, twin_groups(4, 64), &Device::Cpu).unwrap();
+        assert_eq!(groups.len(), 2);
+        let parts = shards.iter().map(|s| (s.actions.clone(), s.rewards.clone())).collect();
+        let joined = join_rows(parts, groups.len()).unwrap();
+        for ((actions, rewards), g) in joined.iter().zip(&groups) {
+            let v = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            assert_eq!(v(actions), v(&g.actions));
+            assert_eq!(v(rewards), v(&g.rewards));
+        }
+        let parts: Vec<_> = shards.iter().map(|s| (s.actions.clone(), s.rewards.clone())).collect();
+        assert!(join_rows(parts, 3).unwrap_err().to_string().contains("4 row shards"));
+    }
+
+    #[test]
     fn gradients_add_up_per_variable() {
         let w = Var::new(&[1f32, 2.0], &Device::Cpu).unwrap();
         let grads = |k: f64| (w.as_tensor() * k).unwrap().sum_all().unwrap().backward().unwrap();
@@ -275,6 +349,8 @@ mod tests {
         assert_eq!(workers.threads(), 2);
         let first: Vec<f32> = workers.map(&shards, |s| Ok(s.rewards.to_vec1::<f32>()?[0])).unwrap();
         assert_eq!(first, vec![0.0, 8.0, 16.0, 24.0]);
+        let squares = workers.run(9, |i| Ok(i * i)).unwrap();
+        assert_eq!(squares, (0..9).map(|i| i * i).collect::<Vec<_>>());
         assert!(Workers::new(0).unwrap().threads() >= 1);
         let hits: Vec<std::sync::atomic::AtomicUsize> =
             (0..37).map(|_| Default::default()).collect();

@@ -264,8 +264,13 @@ impl<P: super::GaussianPolicy, Q: super::QFunction> SacLearner<P, Q> {
         let alpha = self.nets.log_alpha.as_tensor().exp()?.detach();
         let shard = c.inputs.shard();
         let corrections = c.inputs.corrections.as_tensor().clone();
-        let losses: StepLosses =
-            self.step_networks(std::slice::from_ref(&shard), &alpha, policy, Some(&corrections))?;
+        let losses: StepLosses = self.step_networks(
+            std::slice::from_ref(&shard),
+            std::slice::from_ref(&shard),
+            &alpha,
+            policy,
+            Some(&corrections),
+        )?;
         c.critic_metrics.set(&Tensor::stack(&[&losses.critic[0], &losses.q_mean[0]], 0)?)?;
         if let Some((actor, entropy)) = &losses.policy {
             c.policy_metrics.set(&Tensor::stack(&[&actor[0], entropy], 0)?)?;
