@@ -21,6 +21,7 @@
 //! same episodes. Random episodes are not logged to MCAP (they are most of an evaluation's
 //! steps, so most of its log); the routes are.
 
+use crate::best_agent::{BestAgent, Moment};
 use crate::csv_format::{ser_2_decimals, ser_4_decimals_or_nan};
 use dvnav_config::Config;
 use dvnav_eval::episode_log::LogMetadata;
@@ -102,6 +103,8 @@ impl Evaluator {
                 }
             };
             let mut logger = None;
+            let mut best = BestAgent::open(&out);
+            let config_toml = cfg.to_toml_string();
             for snap in rx {
                 if logger.is_none() {
                     logger = open_logger(&cfg, &out)
@@ -110,24 +113,63 @@ impl Evaluator {
                 }
                 let result = pool.install(|| evaluate(&cfg, &rooms, &snap, logger.as_mut()));
                 let csv = out.join("eval.csv");
-                match result {
+                let rows = match result {
                     Ok((rows, wall)) => {
                         log_rows(&snap, &rows, wall);
                         report_write(&csv, append_csv(&csv, &snap, &rows, wall), on_write_failure.as_ref());
+                        Some(rows)
                     }
-                    Err(e) => tracing::error!(updates = snap.updates, error = %format!("{e:#}"), "evaluation failed"),
-                }
+                    Err(e) => {
+                        tracing::error!(updates = snap.updates, error = %format!("{e:#}"), "evaluation failed");
+                        None
+                    }
+                };
+                // The agent's gate test, for the best agent; `None` when it was asked and failed.
+                let mut agent_gate: Option<Option<Vec<RobotResult>>> = None;
                 if cfg.learner.eval_gate {
                     let mut gates = vec![(GATE_CSV, "agent", &snap.policy)];
                     gates.extend(snap.online.as_ref().map(|w| (GATE_ONLINE_CSV, "online policy", w)));
                     for (file, policy, weights) in gates {
                         let csv = out.join(file);
-                        match pool.install(|| evaluate_gate(&cfg, weights)) {
+                        let robots = match pool.install(|| evaluate_gate(&cfg, weights)) {
                             Ok(robots) => {
                                 log_gate(&snap, policy, &robots);
                                 report_write(&csv, append_gate_csv(&csv, &snap, &robots), on_write_failure.as_ref());
+                                Some(robots)
                             }
-                            Err(e) => tracing::error!(updates = snap.updates, policy, error = %format!("{e:#}"), "the gate test failed"),
+                            Err(e) => {
+                                tracing::error!(updates = snap.updates, policy, error = %format!("{e:#}"), "the gate test failed");
+                                None
+                            }
+                        };
+                        if file == GATE_CSV {
+                            agent_gate = Some(robots);
+                        }
+                    }
+                }
+                let gate = match &agent_gate {
+                    None => Some(None),
+                    Some(Some(robots)) => Some(Some(robots.as_slice())),
+                    Some(None) => None,
+                };
+                if let (Some(rows), Some(gate)) = (&rows, gate) {
+                    let at = Moment {
+                        updates: snap.updates,
+                        env_steps: snap.env_steps,
+                        policy_version: snap.policy_version,
+                    };
+                    match best.offer(at, &snap.policy, rows, gate, &config_toml) {
+                        Ok(Some(kept)) => tracing::info!(
+                            updates = kept.updates,
+                            score = format!("{:.3}", kept.score),
+                            rooms_success = format!("{:.3}", kept.rooms_success),
+                            gate_passed = kept.gate_passed,
+                            "best agent so far, kept in best/"
+                        ),
+                        Ok(None) => {}
+                        Err(e) => {
+                            let path = out.join(crate::best_agent::BEST_DIR);
+                            report_write(&path, Err(e), on_write_failure.as_ref());
                         }
                     }
                 }
@@ -655,6 +697,19 @@ mod tests {
         assert_eq!(online.len(), 1 + 12, "only the evaluation with an average");
         // The same weights here, so the same rows as gate.csv's at 20 updates.
         assert_eq!(online[1..], lines[13..]);
+        // The best agent is the same policy scoring the same at 20: the later one is kept,
+        // scored with the gate, and loads as a checkpoint.
+        let best = dir.path().join(crate::best_agent::BEST_DIR);
+        let record: crate::best_agent::BestRecord =
+            serde_json::from_slice(&std::fs::read(best.join("best.json")).unwrap()).unwrap();
+        assert_eq!((record.updates, record.gate_robots), (20, Some(12)));
+        let passed = lines[13..].iter().filter(|l| l.ends_with(",true")).count();
+        assert_eq!(record.gate_passed, Some(passed));
+        let expected = (record.rooms_success + passed as f64 / 12.0) / 2.0;
+        assert!((record.score - expected).abs() < 1e-12, "{record:?}");
+        let kept = dvnav_nav::policy::read_policy(&best).unwrap();
+        assert_eq!(kept.config.learner.eval_gate, cfg.learner.eval_gate);
+        MetaAgent::from_policy_file(&kept).unwrap();
         // Off: no gate.csv.
         cfg.learner.eval_gate = false;
         let dir = tempfile::tempdir().unwrap();

@@ -32,6 +32,7 @@
 pub mod actor_tokens;
 pub mod alloc_count;
 pub mod bench;
+pub mod best_agent;
 pub mod checkpoint;
 pub mod csv_format;
 pub mod curriculum;

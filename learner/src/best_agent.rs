@@ -1,0 +1,220 @@
+//! The run's best agent by its training-time evaluation: after each evaluation
+//! ([`crate::evaluator`]) the agent of that moment is scored on what the evaluation measured (the
+//! curriculum's training rooms and seeds, and the paper's gate test with `learner.eval_gate`),
+//! and the best so far is kept in `best/` in the run directory: `policy.safetensors`,
+//! `config.toml` and `best.json` (when, and why). `dvnav eval --checkpoint RUN/best` evaluates
+//! it like any checkpoint.
+//!
+//! Why: an agent's skill swings from one evaluation to the next (the generalist experiments of
+//! docs/results.md: the gate test moved by 3.3 robots of 12 between evaluations 2,000 updates
+//! apart), so the last checkpoint is a draw from that swing. Picking among the evaluations a run
+//! already makes uses only training rooms and seeds, never a held-out figure (issue 29).
+//!
+//! **The score** is the mean success rate over the evaluation's rooms (each room one vote,
+//! whatever its episodes); with the gate test, the mean of that and the share of the gate's
+//! robots that pass, so the kept check weighs as much as the rooms together. A later
+//! evaluation that scores as high replaces the kept one (more training, same score).
+
+use dvnav_eval::{RobotResult, RoomSummary};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// The best agent's directory inside a run directory.
+pub const BEST_DIR: &str = "best";
+/// What `best/` holds besides the agent: [`BestRecord`] as JSON.
+pub const BEST_JSON: &str = "best.json";
+
+/// Why the agent in `best/` was kept.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BestRecord {
+    /// Learner updates when it was evaluated.
+    pub updates: u64,
+    /// Environment steps received by then.
+    pub env_steps: u64,
+    /// The weight version evaluated.
+    pub policy_version: u64,
+    /// The selection score ([`selection_score`]).
+    pub score: f64,
+    /// Mean success rate over the evaluation's rooms.
+    pub rooms_success: f64,
+    /// Rooms that counted.
+    pub rooms: usize,
+    /// Gate robots that passed, when the gate test ran.
+    pub gate_passed: Option<usize>,
+    /// Gate robots tested.
+    pub gate_robots: Option<usize>,
+}
+
+/// The selection score of one evaluation (see the module docs), or `None` when no room had
+/// episodes.
+pub fn selection_score(rows: &[RoomSummary], gate: Option<&[RobotResult]>) -> Option<f64> {
+    let rates: Vec<f64> =
+        rows.iter().filter(|r| r.rates.episodes > 0).map(|r| r.rates.success_rate).collect();
+    if rates.is_empty() {
+        return None;
+    }
+    let rooms = rates.iter().sum::<f64>() / rates.len() as f64;
+    Some(match gate {
+        Some(robots) if !robots.is_empty() => (rooms + gate_share(robots)) / 2.0,
+        _ => rooms,
+    })
+}
+
+fn gate_share(robots: &[RobotResult]) -> f64 {
+    robots.iter().filter(|r| r.passes_gate_test()).count() as f64 / robots.len() as f64
+}
+
+/// When an evaluated agent was trained to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Moment {
+    /// Learner updates.
+    pub updates: u64,
+    /// Environment steps received.
+    pub env_steps: u64,
+    /// The weight version.
+    pub policy_version: u64,
+}
+
+/// Keeps the best agent of a run in `RUN/best`.
+#[derive(Debug)]
+pub struct BestAgent {
+    run_dir: PathBuf,
+    kept: Option<BestRecord>,
+}
+
+impl BestAgent {
+    /// The keeper for the run in `run_dir`, starting from the agent already kept there (a
+    /// resumed run), if any.
+    pub fn open(run_dir: &Path) -> Self {
+        let kept = std::fs::read(run_dir.join(BEST_DIR).join(BEST_JSON))
+            .ok()
+            .and_then(|bytes| serde_json::from_slice(&bytes).ok());
+        Self { run_dir: run_dir.to_path_buf(), kept }
+    }
+
+    /// What is kept now.
+    pub fn kept(&self) -> Option<&BestRecord> {
+        self.kept.as_ref()
+    }
+
+    /// Scores the evaluation of the agent `policy` (safetensors bytes) trained to `at` (its
+    /// `rows`, and `gate` when the gate test ran) and keeps the agent when it scores at least as
+    /// high as the kept one; `config_toml` is the run's configuration, written beside the
+    /// weights. Returns the record when it was kept.
+    pub fn offer(
+        &mut self,
+        at: Moment,
+        policy: &[u8],
+        rows: &[RoomSummary],
+        gate: Option<&[RobotResult]>,
+        config_toml: &str,
+    ) -> anyhow::Result<Option<&BestRecord>> {
+        let Some(score) = selection_score(rows, gate) else { return Ok(None) };
+        if self.kept.as_ref().is_some_and(|k| score < k.score) {
+            return Ok(None);
+        }
+        let counted: Vec<f64> =
+            rows.iter().filter(|r| r.rates.episodes > 0).map(|r| r.rates.success_rate).collect();
+        let record = BestRecord {
+            updates: at.updates,
+            env_steps: at.env_steps,
+            policy_version: at.policy_version,
+            score,
+            rooms_success: counted.iter().sum::<f64>() / counted.len() as f64,
+            rooms: counted.len(),
+            gate_passed: gate.map(|g| g.iter().filter(|r| r.passes_gate_test()).count()),
+            gate_robots: gate.map(<[RobotResult]>::len),
+        };
+        self.write(&record, policy, config_toml)?;
+        Ok(Some(self.kept.insert(record)))
+    }
+
+    /// Writes the agent into `best.tmp`, then swaps it in, so `best/` is always whole.
+    fn write(&self, record: &BestRecord, policy: &[u8], config_toml: &str) -> anyhow::Result<()> {
+        use anyhow::Context;
+        let best = self.run_dir.join(BEST_DIR);
+        let tmp = self.run_dir.join(format!("{BEST_DIR}.tmp"));
+        let old = self.run_dir.join(format!("{BEST_DIR}.old"));
+        for stale in [&tmp, &old] {
+            if stale.exists() {
+                std::fs::remove_dir_all(stale)?;
+            }
+        }
+        std::fs::create_dir_all(&tmp)
+            .with_context(|| format!("cannot create {}", tmp.display()))?;
+        std::fs::write(tmp.join(crate::checkpoint::POLICY_FILE), policy)?;
+        std::fs::write(tmp.join("config.toml"), config_toml)?;
+        std::fs::write(tmp.join(BEST_JSON), serde_json::to_vec_pretty(record)?)?;
+        if best.exists() {
+            std::fs::rename(&best, &old)?;
+        }
+        std::fs::rename(&tmp, &best)
+            .with_context(|| format!("cannot move {} to {}", tmp.display(), best.display()))?;
+        if old.exists() {
+            std::fs::remove_dir_all(&old)?;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dvnav_eval::Rates;
+
+    fn room(success: f64, episodes: usize) -> RoomSummary {
+        RoomSummary {
+            room: "r".into(),
+            radius: None,
+            rates: Rates {
+                episodes,
+                success_rate: success,
+                collision_rate: 1.0 - success,
+                timeout_rate: 0.0,
+                mean_score: 0.0,
+                mean_time_s: None,
+                mean_path_length_m: None,
+                reversal_rate: 0.0,
+                mean_abs_domega: 0.0,
+                routes: None,
+            },
+            route: None,
+        }
+    }
+
+    fn at(updates: u64) -> Moment {
+        Moment { updates, env_steps: 4 * updates, policy_version: 1 }
+    }
+
+    #[test]
+    fn the_score_is_the_rooms_mean_and_the_gate_weighs_as_much() {
+        let rows = [room(1.0, 10), room(0.5, 10), room(0.0, 0)];
+        assert_eq!(
+            selection_score(&rows, None),
+            Some(0.75),
+            "a room without episodes does not vote"
+        );
+        assert_eq!(selection_score(&[room(0.3, 0)], None), None);
+        assert_eq!(selection_score(&rows, Some(&[])), Some(0.75));
+    }
+
+    #[test]
+    fn the_best_agent_is_kept_replaced_only_by_as_good_and_read_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut best = BestAgent::open(dir.path());
+        assert!(best.kept().is_none());
+        let kept = best.offer(at(100), b"first", &[room(0.6, 5)], None, "a = 1\n").unwrap();
+        assert_eq!(kept.map(|k| k.updates), Some(100));
+        assert!(best.offer(at(200), b"worse", &[room(0.5, 5)], None, "a = 1\n").unwrap().is_none());
+        let kept = best.offer(at(300), b"later", &[room(0.6, 5)], None, "a = 2\n").unwrap();
+        assert_eq!(kept.map(|k| (k.updates, k.score)), Some((300, 0.6)));
+        let on_disk = dir.path().join(BEST_DIR);
+        assert_eq!(std::fs::read(on_disk.join("policy.safetensors")).unwrap(), b"later");
+        assert_eq!(std::fs::read_to_string(on_disk.join("config.toml")).unwrap(), "a = 2\n");
+        assert!(!dir.path().join("best.tmp").exists() && !dir.path().join("best.old").exists());
+        // A resumed run starts from what was kept.
+        let mut again = BestAgent::open(dir.path());
+        assert_eq!(again.kept().map(|k| k.updates), Some(300));
+        assert!(again.offer(at(400), b"no", &[room(0.4, 5)], None, "").unwrap().is_none());
+    }
+}
