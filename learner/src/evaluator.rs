@@ -20,6 +20,10 @@
 //! from `run.seed`, so every evaluation of a run (and of runs with the same seed) faces the
 //! same episodes. Random episodes are not logged to MCAP (they are most of an evaluation's
 //! steps, so most of its log); the routes are.
+//!
+//! **The best agent.** Each evaluation (with the gate test when `learner.eval_gate` asks for
+//! it) is offered to [`BestAgent`], which keeps the best-scoring agent in `best/`
+//! ([`crate::best_agent`]).
 
 use crate::best_agent::{BestAgent, Moment};
 use crate::csv_format::{ser_2_decimals, ser_4_decimals_or_nan};

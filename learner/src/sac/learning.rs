@@ -378,10 +378,11 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
 
     /// The update's arithmetic on `shards`, the minibatch's row shards, and `groups`, the
     /// same rows in [`shards::twin_groups`] groups, each a whole number of consecutive shards:
-    /// both critics, then (when `policy`) the policy, α and θ̄, then the targets. Counts nothing on the host and reads nothing back, so that
-    /// it can be captured as a CUDA graph: `corrections` (the critics', policy's and α's Adam
-    /// bias corrections, 6 values on the device) replace the optimizers' own step counts when
-    /// given. Returns the losses as tensors.
+    /// both critics, then (when `policy`) the policy, α and θ̄, then the targets. Counts
+    /// nothing on the host and reads nothing back, so that it can be captured as a CUDA graph:
+    /// `corrections` (the critics', policy's and α's Adam bias corrections, 6 values on the
+    /// device) replace the optimizers' own step counts when given. Returns the losses as
+    /// tensors.
     fn step_networks(
         &mut self,
         shards: &[shards::Shard],
@@ -411,7 +412,8 @@ impl<P: GaussianPolicy, Q: QFunction> SacLearner<P, Q> {
         // pass, again a job per critic and group. The twins are independent networks, so a
         // job runs one whole network over its rows: cut into row shards instead, every worker
         // repeats each weight's work (packing it for the products, copying its gradient), and
-        // two workers did 1.2x the arithmetic of one (docs/results.md, "Twin critics").
+        // two half-batch shards took 1.2x the time of the whole batch on one worker
+        // (docs/results.md, "Twin critics").
         let next = workers.map(shards, |s| {
             let next = nets.actor.net.sample_with_noise(&s.next_obs, &s.eps_next)?;
             Ok((next.action.detach(), next.log_prob.detach()))
