@@ -48,16 +48,18 @@ pub struct BestRecord {
 /// The selection score of one evaluation (see the module docs), or `None` when no room had
 /// episodes.
 pub fn selection_score(rows: &[RoomSummary], gate: Option<&[RobotResult]>) -> Option<f64> {
-    let rates: Vec<f64> =
-        rows.iter().filter(|r| r.rates.episodes > 0).map(|r| r.rates.success_rate).collect();
-    if rates.is_empty() {
-        return None;
-    }
-    let rooms = rates.iter().sum::<f64>() / rates.len() as f64;
+    let (rooms, _) = rooms_success(rows)?;
     Some(match gate {
         Some(robots) if !robots.is_empty() => (rooms + gate_share(robots)) / 2.0,
         _ => rooms,
     })
+}
+
+/// The mean success rate over the rooms that had episodes, and how many there were.
+fn rooms_success(rows: &[RoomSummary]) -> Option<(f64, usize)> {
+    let rates: Vec<f64> =
+        rows.iter().filter(|r| r.rates.episodes > 0).map(|r| r.rates.success_rate).collect();
+    (!rates.is_empty()).then(|| (rates.iter().sum::<f64>() / rates.len() as f64, rates.len()))
 }
 
 fn gate_share(robots: &[RobotResult]) -> f64 {
@@ -113,15 +115,14 @@ impl BestAgent {
         if self.kept.as_ref().is_some_and(|k| score < k.score) {
             return Ok(None);
         }
-        let counted: Vec<f64> =
-            rows.iter().filter(|r| r.rates.episodes > 0).map(|r| r.rates.success_rate).collect();
+        let Some((rooms_mean, rooms)) = rooms_success(rows) else { return Ok(None) };
         let record = BestRecord {
             updates: at.updates,
             env_steps: at.env_steps,
             policy_version: at.policy_version,
             score,
-            rooms_success: counted.iter().sum::<f64>() / counted.len() as f64,
-            rooms: counted.len(),
+            rooms_success: rooms_mean,
+            rooms,
             gate_passed: gate.map(|g| g.iter().filter(|r| r.passes_gate_test()).count()),
             gate_robots: gate.map(<[RobotResult]>::len),
         };
