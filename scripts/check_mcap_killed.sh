@@ -8,7 +8,9 @@ set -euo pipefail
 dvnav=$1 python=$2 run=$3
 rm -rf "$run"
 config=$(mktemp)
-trap 'rm -f "$config"' EXIT
+train=
+# A failed wait below must not leave the run going.
+trap 'rm -f "$config"; [ -z "$train" ] || kill "$train" 2> /dev/null || true' EXIT
 # Long enough that the kill falls well inside the run.
 sed 's/^steps = 2000/steps = 6000/' scripts/check_mcap.toml > "$config"
 "$dvnav" train --actors 2 --config "$config" --out "$run" --progress-every-s 60 &
@@ -17,25 +19,35 @@ train=$!
 # (the newest of an environment) to hold a complete episode: a file gets its first bytes when
 # its first episode's chunk is written whole. Then kill it, mid-episode. Killing the moment a
 # file appears would catch the new files empty, with nothing in them to check.
-ready() {
-  "$python" - "$run/mcap/actor-0" <<'PY'
-import os, sys
-d = sys.argv[1]
-try:
-    files = sorted(f for f in os.listdir(d) if f.endswith(".mcap"))
-except FileNotFoundError:
-    sys.exit(1)
-newest = {f.rsplit("-", 1)[0]: f for f in files}
-ok = len(files) >= 6 and any(os.path.getsize(os.path.join(d, f)) > 0 for f in newest.values())
-sys.exit(0 if ok else 1)
+# One process looks and kills: with a separate check and kill (two Python starts, ~0.1 s apart)
+# both of actor-0's environments could finish their file (3 short episodes take ~0.25 s) and open
+# empty ones in between, and a CI run failed so; here the gap is one stat to one kill.
+pid=$("$python" - "$run" <<'PY'
+import json, os, signal, sys, time
+run = sys.argv[1]
+d = os.path.join(run, "mcap", "actor-0")
+deadline = time.monotonic() + 60
+while True:
+    if time.monotonic() > deadline:
+        sys.exit("check-mcap: actor-0 wrote no complete episode into a rotated file within 60 s")
+    try:
+        pid = json.load(open(os.path.join(run, "pids.json")))["actors"][0]["pid"]
+        files = sorted(f for f in os.listdir(d) if f.endswith(".mcap"))
+        newest = {f.rsplit("-", 1)[0]: f for f in files}
+        ready = len(files) >= 6 and any(
+            os.path.getsize(os.path.join(d, f)) > 0 for f in newest.values()
+        )
+    except (FileNotFoundError, ValueError, KeyError, IndexError):
+        # Not yet written (or caught mid-write): look again.
+        ready = False
+    if ready:
+        os.kill(pid, signal.SIGKILL)
+        print(pid)
+        break
+    time.sleep(0.02)
 PY
-}
-for _ in $(seq 1 600); do
-  ready && break
-  sleep 0.05
-done
-pid=$("$python" -c 'import json,sys; print(json.load(open(sys.argv[1]))["actors"][0]["pid"])' "$run/pids.json")
-kill -KILL "$pid"
+)
 echo "check-mcap: killed actor-0 (pid $pid) mid-run"
 wait "$train"
+train=
 "$python" scripts/check_mcap.py --expect-killed "$run"
