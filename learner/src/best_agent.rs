@@ -11,9 +11,11 @@
 //! already makes uses only training rooms and seeds, never a held-out figure (issue 29).
 //!
 //! **The score** is the mean success rate over the evaluation's rooms (each room one vote,
-//! whatever its episodes); with the gate test, the mean of that and the share of the gate's
-//! robots that pass, so the kept check weighs as much as the rooms together. A later
-//! evaluation that scores as high replaces the kept one (more training, same score).
+//! whatever its episodes), or with `[learner.selection]` over the selection's rows (each room
+//! and robot one vote, [`crate::selection`]) instead; with the gate test, the mean of that and
+//! the share of the gate's robots that pass, so the kept check weighs as much as the rooms
+//! together. A later evaluation that scores as high replaces the kept one (more training, same
+//! score).
 
 use dvnav_eval::{RobotResult, RoomSummary};
 use serde::{Deserialize, Serialize};
@@ -35,7 +37,9 @@ pub struct BestRecord {
     pub policy_version: u64,
     /// The selection score ([`selection_score`]).
     pub score: f64,
-    /// Mean success rate over the evaluation's rooms.
+    /// Mean success rate over the evaluation's rooms (NaN, `null` in the file, when no room
+    /// had episodes and the selection's rows scored).
+    #[serde(deserialize_with = "crate::json_f64::f64_or_nan")]
     pub rooms_success: f64,
     /// Rooms that counted.
     pub rooms: usize,
@@ -43,20 +47,36 @@ pub struct BestRecord {
     pub gate_passed: Option<usize>,
     /// Gate robots tested.
     pub gate_robots: Option<usize>,
+    /// Mean success rate over the selection's rows, with `[learner.selection]`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub select_success: Option<f64>,
 }
 
-/// The selection score of one evaluation (see the module docs), or `None` when no room had
-/// episodes.
-pub fn selection_score(rows: &[RoomSummary], gate: Option<&[RobotResult]>) -> Option<f64> {
-    let (rooms, _) = rooms_success(rows)?;
-    Some(match gate {
+/// What one evaluation measured of an agent: its rows in the training rooms, the gate test
+/// when it ran, and the selection's rows when `[learner.selection]` asked for them.
+#[derive(Clone, Copy, Debug)]
+pub struct Measured<'a> {
+    /// The training-time evaluation's rows.
+    pub rows: &'a [RoomSummary],
+    /// The gate test's robots.
+    pub gate: Option<&'a [RobotResult]>,
+    /// The selection's rows.
+    pub selection: Option<&'a [RoomSummary]>,
+}
+
+/// The selection score of one evaluation (see the module docs), or `None` when no room (or,
+/// with the selection, no row of it) had episodes.
+pub fn selection_score(m: Measured) -> Option<f64> {
+    let rooms = mean_success(m.selection.unwrap_or(m.rows))?.0;
+    Some(match m.gate {
         Some(robots) if !robots.is_empty() => (rooms + gate_share(robots)) / 2.0,
         _ => rooms,
     })
 }
 
-/// The mean success rate over the rooms that had episodes, and how many there were.
-fn rooms_success(rows: &[RoomSummary]) -> Option<(f64, usize)> {
+/// The mean success rate over the rows (rooms, or rooms and robots) that had episodes, each
+/// one vote, and how many there were; `None` when none had.
+pub fn mean_success(rows: &[RoomSummary]) -> Option<(f64, usize)> {
     let rates: Vec<f64> =
         rows.iter().filter(|r| r.rates.episodes > 0).map(|r| r.rates.success_rate).collect();
     (!rates.is_empty()).then(|| (rates.iter().sum::<f64>() / rates.len() as f64, rates.len()))
@@ -99,23 +119,22 @@ impl BestAgent {
         self.kept.as_ref()
     }
 
-    /// Scores the evaluation of the agent `policy` (safetensors bytes) trained to `at` (its
-    /// `rows`, and `gate` when the gate test ran) and keeps the agent when it scores at least as
-    /// high as the kept one; `config_toml` is the run's configuration, written beside the
-    /// weights. Returns the record when it was kept.
+    /// Scores the evaluation `m` of the agent `policy` (safetensors bytes) trained to `at` and
+    /// keeps the agent when it scores at least as high as the kept one; `config_toml` is the
+    /// run's configuration, written beside the weights. Returns the record when it was kept.
     pub fn offer(
         &mut self,
         at: Moment,
         policy: &[u8],
-        rows: &[RoomSummary],
-        gate: Option<&[RobotResult]>,
+        m: Measured,
         config_toml: &str,
     ) -> anyhow::Result<Option<&BestRecord>> {
-        let Some(score) = selection_score(rows, gate) else { return Ok(None) };
+        let Some(score) = selection_score(m) else { return Ok(None) };
         if self.kept.as_ref().is_some_and(|k| score < k.score) {
             return Ok(None);
         }
-        let Some((rooms_mean, rooms)) = rooms_success(rows) else { return Ok(None) };
+        let (rooms_mean, rooms) = mean_success(m.rows).unwrap_or((f64::NAN, 0));
+        let gate = m.gate;
         let record = BestRecord {
             updates: at.updates,
             env_steps: at.env_steps,
@@ -125,6 +144,7 @@ impl BestAgent {
             rooms,
             gate_passed: gate.map(|g| g.iter().filter(|r| r.passes_gate_test()).count()),
             gate_robots: gate.map(<[RobotResult]>::len),
+            select_success: m.selection.and_then(mean_success).map(|(s, _)| s),
         };
         self.write(&record, policy, config_toml)?;
         Ok(Some(self.kept.insert(record)))
@@ -183,6 +203,10 @@ mod tests {
         }
     }
 
+    fn rooms(rows: &[RoomSummary]) -> Measured<'_> {
+        Measured { rows, gate: None, selection: None }
+    }
+
     fn at(updates: u64) -> Moment {
         Moment { updates, env_steps: 4 * updates, policy_version: 1 }
     }
@@ -191,12 +215,22 @@ mod tests {
     fn the_score_is_the_rooms_mean_and_the_gate_weighs_as_much() {
         let rows = [room(1.0, 10), room(0.5, 10), room(0.0, 0)];
         assert_eq!(
-            selection_score(&rows, None),
+            selection_score(Measured { rows: &rows, gate: None, selection: None }),
             Some(0.75),
             "a room without episodes does not vote"
         );
-        assert_eq!(selection_score(&[room(0.3, 0)], None), None);
-        assert_eq!(selection_score(&rows, Some(&[])), Some(0.75));
+        let none = Measured { rows: &[room(0.3, 0)], gate: None, selection: None };
+        assert_eq!(selection_score(none), None);
+        assert_eq!(
+            selection_score(Measured { rows: &rows, gate: Some(&[]), selection: None }),
+            Some(0.75)
+        );
+        // The selection's rows, when there, score instead of the rooms.
+        let sel = [room(0.2, 16), room(0.4, 16)];
+        let m = Measured { rows: &rows, gate: None, selection: Some(&sel) };
+        assert!((selection_score(m).unwrap() - 0.3).abs() < 1e-12);
+        let m = Measured { rows: &[], gate: None, selection: Some(&sel[..0]) };
+        assert_eq!(selection_score(m), None, "a selection without episodes does not score");
     }
 
     #[test]
@@ -204,10 +238,12 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mut best = BestAgent::open(dir.path());
         assert!(best.kept().is_none());
-        let kept = best.offer(at(100), b"first", &[room(0.6, 5)], None, "a = 1\n").unwrap();
+        let kept = best.offer(at(100), b"first", rooms(&[room(0.6, 5)]), "a = 1\n").unwrap();
         assert_eq!(kept.map(|k| k.updates), Some(100));
-        assert!(best.offer(at(200), b"worse", &[room(0.5, 5)], None, "a = 1\n").unwrap().is_none());
-        let kept = best.offer(at(300), b"later", &[room(0.6, 5)], None, "a = 2\n").unwrap();
+        assert!(
+            best.offer(at(200), b"worse", rooms(&[room(0.5, 5)]), "a = 1\n").unwrap().is_none()
+        );
+        let kept = best.offer(at(300), b"later", rooms(&[room(0.6, 5)]), "a = 2\n").unwrap();
         assert_eq!(kept.map(|k| (k.updates, k.score)), Some((300, 0.6)));
         let on_disk = dir.path().join(BEST_DIR);
         assert_eq!(std::fs::read(on_disk.join("policy.safetensors")).unwrap(), b"later");
@@ -216,6 +252,27 @@ mod tests {
         // A resumed run starts from what was kept.
         let mut again = BestAgent::open(dir.path());
         assert_eq!(again.kept().map(|k| k.updates), Some(300));
-        assert!(again.offer(at(400), b"no", &[room(0.4, 5)], None, "").unwrap().is_none());
+        assert!(again.offer(at(400), b"no", rooms(&[room(0.4, 5)]), "").unwrap().is_none());
+    }
+
+    #[test]
+    fn with_the_selection_its_rows_decide_and_the_record_reads_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut best = BestAgent::open(dir.path());
+        let sel = [room(0.8, 16), room(0.6, 16)];
+        let m = Measured { rows: &[room(0.1, 5)], gate: None, selection: Some(&sel) };
+        let kept = best.offer(at(100), b"a", m, "").unwrap().cloned().unwrap();
+        assert!((kept.score - 0.7).abs() < 1e-12 && (kept.rooms_success - 0.1).abs() < 1e-12);
+        assert_eq!(kept.select_success, Some(kept.score));
+        // Better rooms, a worse selection: not kept.
+        let worse = [room(0.5, 16), room(0.6, 16)];
+        let m = Measured { rows: &[room(1.0, 5)], gate: None, selection: Some(&worse) };
+        assert!(best.offer(at(200), b"b", m, "").unwrap().is_none());
+        // No room rows but a selection: kept, the rooms' mean unknown, and it reads back.
+        let m = Measured { rows: &[], gate: None, selection: Some(&sel) };
+        assert_eq!(best.offer(at(300), b"c", m, "").unwrap().map(|k| k.updates), Some(300));
+        let again = BestAgent::open(dir.path());
+        let k = again.kept().unwrap();
+        assert!(k.updates == 300 && k.rooms_success.is_nan() && k.rooms == 0, "{k:?}");
     }
 }

@@ -25,8 +25,9 @@
 //! it) is offered to [`BestAgent`], which keeps the best-scoring agent in `best/`
 //! ([`crate::best_agent`]).
 
-use crate::best_agent::{BestAgent, Moment};
-use crate::csv_format::{ser_2_decimals, ser_4_decimals_or_nan};
+use crate::best_agent::{BestAgent, Measured, Moment, mean_success};
+use crate::csv_format::{append_rows, ser_2_decimals, ser_4_decimals_or_nan};
+use crate::selection::{SELECT_CSV, append_select_csv, evaluate_selection, selection_rooms};
 use dvnav_config::Config;
 use dvnav_eval::episode_log::LogMetadata;
 use dvnav_eval::{
@@ -38,7 +39,6 @@ use dvnav_nav::policy::{MetaAgent, NavPolicy};
 use dvnav_sim::room_set::RoomSet;
 use dvnav_sim::{Footprint, Room};
 use serde::{Deserialize, Serialize};
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::mpsc::{self, SyncSender, TrySendError};
@@ -95,6 +95,12 @@ impl Evaluator {
             return Ok(None);
         }
         let rooms = stage_rooms(cfg)?;
+        let selection = cfg
+            .learner
+            .selection
+            .as_ref()
+            .map(|sel| selection_rooms(sel).map(|rooms| (sel.clone(), rooms)))
+            .transpose()?;
         let (tx, rx) = mpsc::sync_channel::<Snapshot>(1);
         let cfg = cfg.clone();
         let out = out_dir.to_path_buf();
@@ -156,18 +162,34 @@ impl Evaluator {
                     Some(Some(robots)) => Some(Some(robots.as_slice())),
                     Some(None) => None,
                 };
-                if let (Some(rows), Some(gate)) = (&rows, gate) {
-                    let at = Moment {
-                        updates: snap.updates,
-                        env_steps: snap.env_steps,
-                        policy_version: snap.policy_version,
-                    };
-                    match best.offer(at, &snap.policy, rows, gate, &config_toml) {
+                // The best agent's own evaluation; `None` when it was asked and failed.
+                let selected: Option<Option<Vec<RoomSummary>>> = match &selection {
+                    None => Some(None),
+                    Some((sel, sel_rooms)) => {
+                        match pool.install(|| evaluate_selection(&cfg, sel, sel_rooms, &snap.policy, eval_seed(cfg.run.seed))) {
+                            Ok((sel_rows, wall)) => {
+                                log_selection(&snap, &sel.radii, &sel_rows, wall);
+                                let csv = out.join(SELECT_CSV);
+                                report_write(&csv, append_select_csv(&csv, &moment(&snap), &sel_rows, wall), on_write_failure.as_ref());
+                                Some(Some(sel_rows))
+                            }
+                            Err(e) => {
+                                tracing::error!(updates = snap.updates, error = %format!("{e:#}"), "the selection evaluation failed");
+                                None
+                            }
+                        }
+                    }
+                };
+                if let (Some(rows), Some(gate), Some(selected)) = (&rows, gate, &selected) {
+                    let at = moment(&snap);
+                    let m = Measured { rows, gate, selection: selected.as_deref() };
+                    match best.offer(at, &snap.policy, m, &config_toml) {
                         Ok(Some(kept)) => tracing::info!(
                             updates = kept.updates,
                             score = format!("{:.3}", kept.score),
                             rooms_success = format!("{:.3}", kept.rooms_success),
                             gate_passed = kept.gate_passed,
+                            select_success = kept.select_success.map_or("-".into(), |s| format!("{s:.3}")),
                             "best agent so far, kept in best/"
                         ),
                         Ok(None) => {}
@@ -433,21 +455,31 @@ pub fn append_gate_csv(path: &Path, snap: &Snapshot, robots: &[RobotResult]) -> 
     append_rows(path, robots.iter().map(|r| GateRow::of(snap, r)))
 }
 
-/// Appends `rows` to the CSV file at `path`, the header first when the file is new or empty:
-/// one write, so a reader never sees half a batch of rows from this process.
-fn append_rows<T: Serialize>(path: &Path, rows: impl IntoIterator<Item = T>) -> anyhow::Result<()> {
-    let mut file = std::fs::OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(path)
-        .map_err(|e| anyhow::anyhow!("cannot open {}: {e}", path.display()))?;
-    let new = file.metadata()?.len() == 0;
-    let mut w = csv::WriterBuilder::new().has_headers(new).from_writer(Vec::new());
-    for r in rows {
-        w.serialize(r)?;
-    }
-    file.write_all(&w.into_inner().map_err(|e| e.into_error())?)?;
-    Ok(())
+/// When `snap`'s agent was trained to.
+fn moment(snap: &Snapshot) -> Moment {
+    Moment { updates: snap.updates, env_steps: snap.env_steps, policy_version: snap.policy_version }
+}
+
+fn log_selection(snap: &Snapshot, radii: &[f64], rows: &[RoomSummary], wall_s: f64) {
+    let by_radius: Vec<String> = radii
+        .iter()
+        .map(|&radius| {
+            let of: Vec<f64> = rows
+                .iter()
+                .filter(|r| r.radius == Some(radius) && r.rates.episodes > 0)
+                .map(|r| r.rates.success_rate)
+                .collect();
+            let mean = of.iter().sum::<f64>() / of.len().max(1) as f64;
+            format!("R = {radius}: {:.0} %", 100.0 * mean)
+        })
+        .collect();
+    tracing::info!(
+        updates = snap.updates,
+        success = mean_success(rows).map_or("-".into(), |(s, _)| format!("{s:.3}")),
+        by_radius = %by_radius.join(", "),
+        wall_s = format!("{wall_s:.1}"),
+        "selection evaluation"
+    );
 }
 
 fn log_gate(snap: &Snapshot, policy: &str, robots: &[RobotResult]) {
@@ -660,6 +692,30 @@ mod tests {
         let cfg = tiny_config();
         let fresh = evaluate_gate(&cfg, &fresh_policy(&cfg)).unwrap();
         assert!(fresh.iter().filter(|r| r.passes_gate_test()).count() < 12);
+    }
+
+    #[test]
+    fn with_a_selection_the_evaluator_writes_select_csv_and_keeps_the_best_agent_by_it() {
+        let mut cfg = tiny_config();
+        cfg.curriculum.rooms = vec!["env0".into()];
+        cfg.learner.selection = Some(dvnav_config::SelectionConfig {
+            rooms: "generated:paper:0..10".into(),
+            room_count: 2,
+            radii: vec![0.2, 0.4],
+            episodes: 2,
+        });
+        let dir = tempfile::tempdir().unwrap();
+        let ev = Evaluator::start(&cfg, dir.path()).unwrap().unwrap();
+        assert!(ev.submit(snapshot(10, 40, 3, fresh_policy(&cfg))));
+        ev.finish();
+        let text = std::fs::read_to_string(dir.path().join(SELECT_CSV)).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines[0], crate::selection::SELECT_CSV_HEADER);
+        assert_eq!(lines.len(), 1 + 2 * 2, "two rooms, two robots: {text}");
+        let best = crate::best_agent::BestAgent::open(dir.path());
+        let kept = best.kept().expect("the first evaluation is kept");
+        assert_eq!(kept.updates, 10);
+        assert_eq!(kept.select_success, Some(kept.score), "no gate: the selection is the score");
     }
 
     #[test]

@@ -46,6 +46,7 @@ pub mod rate_limiter;
 pub mod replay;
 pub mod run;
 pub mod sac;
+pub mod selection;
 pub mod service;
 pub mod state;
 pub mod trainer;

@@ -270,6 +270,12 @@ pub struct LearnerConfig {
     /// own test, not a held-out room. Off by default (it costs about as much as the rooms).
     #[serde(skip_serializing_if = "is_false")]
     pub eval_gate: bool,
+    /// The best agent's own evaluation (`[learner.selection]`): with each evaluation, local
+    /// tasks for robots of several sizes in rooms of the training distribution, and the run
+    /// keeps its best agent by them (`RUN/best`). Absent: the best agent is picked by the
+    /// evaluation rows themselves (the meta robot in the curriculum's rooms).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub selection: Option<SelectionConfig>,
     /// The heartbeat interval (s). Actors deliver what they have at least every quarter
     /// interval, even a part batch, and the learner's watchdog names a component that made
     /// no progress for a whole interval (ingest, trainer, rate limiter, each actor) within one
@@ -296,9 +302,37 @@ impl Default for LearnerConfig {
             eval_every_updates: 2_000,
             eval_episodes: 10,
             eval_gate: false,
+            selection: None,
             heartbeat_s: 10.0,
             liveness_stall_s: 300.0,
         }
+    }
+}
+
+/// What the best agent of a run is picked by (`[learner.selection]`, issue 29): the issue's local
+/// tasks (start and goal 2-5 m apart, a collision-free path at most 1.5x the straight line),
+/// clean, for a circular robot of each of `radii` through DVST, in `room_count` rooms of the room
+/// set `rooms` (the curriculum's syntax; drawn round-robin over its alternatives, the first
+/// seeds of each). The training-time evaluation's own rooms test the meta robot alone with a
+/// few episodes per stage, a noisy score that knows nothing of big robots; this one is sized
+/// to tell two agents apart. Its rooms must be training rooms (generated seeds below 9000):
+/// the held-out suite stays held out.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct SelectionConfig {
+    /// Room set, e.g. `generated:clutter:0..2000|generated:corridors:0..2000`.
+    pub rooms: String,
+    /// Rooms drawn from the set.
+    pub room_count: usize,
+    /// Robot radii (m), each through DVST from the meta robot.
+    pub radii: Vec<f64>,
+    /// Episodes per room and robot, the same seeded starts and goals at every evaluation.
+    pub episodes: usize,
+}
+
+impl Default for SelectionConfig {
+    fn default() -> Self {
+        Self { rooms: String::new(), room_count: 12, radii: vec![0.2, 0.4, 0.6], episodes: 16 }
     }
 }
 
@@ -734,6 +768,9 @@ impl Config {
         if le.transitions_in_flight == 0 {
             return Err(bad("learner.transitions_in_flight", "must be at least 1"));
         }
+        if let Some(sel) = &le.selection {
+            self.validate_selection(sel)?;
+        }
         let a = &self.actor;
         if a.envs == 0 {
             return Err(bad("actor.envs", "must be at least 1"));
@@ -830,6 +867,40 @@ impl Config {
     /// `env.radius_input` and `env.radius_range`: a circular robot, a range of positive radii
     /// that fits every built-in curriculum room, and the radius input when the range holds
     /// more than one radius.
+    /// `[learner.selection]`: a room set of rooms that exist, at least one room, episode and
+    /// robot, and a meta robot DVST can scale (circular, no radius input).
+    fn validate_selection(&self, sel: &SelectionConfig) -> Result<(), ConfigError> {
+        let key = "learner.selection";
+        if sel.rooms.is_empty() {
+            return Err(bad(
+                &format!("{key}.rooms"),
+                "must name the rooms to select in (a room set, as a curriculum stage)",
+            ));
+        }
+        validate_stage(&sel.rooms).map_err(|e| bad(&format!("{key}.rooms"), e))?;
+        if sel.room_count == 0 {
+            return Err(bad(&format!("{key}.room_count"), "must be at least 1"));
+        }
+        if sel.episodes == 0 {
+            return Err(bad(&format!("{key}.episodes"), "must be at least 1"));
+        }
+        if sel.radii.is_empty() || sel.radii.iter().any(|r| !(r.is_finite() && *r > 0.0)) {
+            return Err(bad(
+                &format!("{key}.radii"),
+                format!("must be one or more positive radii (m), got {:?}", sel.radii),
+            ));
+        }
+        let e = &self.env;
+        if e.footprint.is_some() || e.radius_input || e.radius_range.is_some() {
+            return Err(bad(
+                &format!("{key}.radii"),
+                "drive the circular meta robot's scaled robots through DVST; it cannot be \
+                 combined with env.footprint, env.radius_input or env.radius_range",
+            ));
+        }
+        Ok(())
+    }
+
     fn validate_radius_range(&self) -> Result<(), ConfigError> {
         let e = &self.env;
         if e.radius_input && e.footprint.is_some() {
@@ -1200,6 +1271,35 @@ mod tests {
         let cfg = Config::from_toml_str("[learner]\ncuda_graph = true\n").unwrap();
         assert!(cfg.learner.cuda_graph);
         assert_eq!(Config::from_toml_str(&cfg.to_toml_string()).unwrap(), cfg);
+    }
+
+    #[test]
+    fn the_selection_stays_out_of_the_toml_while_absent_and_bad_ones_name_the_key() {
+        assert!(!Config::default().to_toml_string().contains("selection"));
+        let sel = "[learner.selection]\nrooms = \"generated:clutter:0..20|env3\"\n";
+        let cfg = Config::from_toml_str(sel).unwrap();
+        let got = cfg.learner.selection.clone().unwrap();
+        assert_eq!(
+            (got.room_count, got.radii.as_slice(), got.episodes),
+            (12, &[0.2, 0.4, 0.6][..], 16)
+        );
+        assert_eq!(Config::from_toml_str(&cfg.to_toml_string()).unwrap(), cfg);
+        let refused = |text: &str, key: &str, words: &str| {
+            let e = Config::from_toml_str(text).unwrap_err();
+            assert_eq!(e.key, key, "{e}");
+            assert!(e.to_string().contains(words), "{e}");
+        };
+        refused("[learner.selection]\nepisodes = 4\n", "learner.selection.rooms", "must name");
+        refused(
+            "[learner.selection]\nrooms = \"nowhere\"\n",
+            "learner.selection.rooms",
+            "neither a built-in room",
+        );
+        refused(&format!("{sel}radii = [0.2, -0.4]\n"), "learner.selection.radii", "positive");
+        refused(&format!("{sel}radii = []\n"), "learner.selection.radii", "positive");
+        refused(&format!("{sel}episodes = 0\n"), "learner.selection.episodes", "at least 1");
+        refused(&format!("{sel}room_count = 0\n"), "learner.selection.room_count", "at least 1");
+        refused(&format!("[env]\nradius_input = true\n{sel}"), "learner.selection.radii", "DVST");
     }
 
     /// The experiment log's configs (docs/results.md) stay runnable as the keys evolve.
