@@ -27,6 +27,7 @@
 
 use crate::best_agent::{BestAgent, Measured, Moment, mean_success};
 use crate::csv_format::{append_rows, ser_2_decimals, ser_4_decimals_or_nan};
+use crate::eval_robots::{clean_env, dvst_agents};
 use crate::selection::{SELECT_CSV, append_select_csv, evaluate_selection, selection_rooms};
 use dvnav_config::Config;
 use dvnav_eval::episode_log::LogMetadata;
@@ -34,10 +35,9 @@ use dvnav_eval::{
     EvalLogger, GATE_RADII, GateGeometry, RobotResult, RoomSummary, RunOptions, TRAINING_ROUTE,
     TaskKind, parse_radii, robot_results, robot_tasks, room_summaries, run_tasks, training_tasks,
 };
-use dvnav_nav::dvst::{Dvst, MetaRobot, VariedRobot};
 use dvnav_nav::policy::{MetaAgent, NavPolicy};
+use dvnav_sim::Room;
 use dvnav_sim::room_set::RoomSet;
-use dvnav_sim::{Footprint, Room};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -375,24 +375,10 @@ pub fn evaluate_gate(cfg: &Config, policy: &[u8]) -> anyhow::Result<Vec<RobotRes
     let geometry = GateGeometry::from_room(room.spec(), &route)?;
     let radii = parse_radii(GATE_RADII)?;
     let tasks = robot_tasks(&room, &route, &radii, eval_seed(cfg.run.seed));
-    let meta = MetaRobot::trained(&cfg.env)?;
-    let mut robots = radii
-        .iter()
-        .map(|&r| {
-            let agent = MetaAgent::from_safetensors(policy, cfg)?;
-            let robot = VariedRobot { meta, ..VariedRobot::new(Footprint::circle(r)) };
-            Dvst::for_run(agent, &cfg.env, robot)
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
+    let mut robots = dvst_agents(cfg, policy, &radii)?;
     let mut policies: Vec<&mut dyn NavPolicy> =
         robots.iter_mut().map(|p| p as &mut dyn NavPolicy).collect();
-    let env = dvnav_config::EnvConfig {
-        dvst: None,
-        subgoals: None,
-        robustness: Default::default(),
-        lidar: dvnav_sim::LidarConfig { noise_std: 0.0, ..cfg.env.lidar.clone() },
-        ..cfg.env.clone()
-    };
+    let env = clean_env(cfg);
     let results =
         run_tasks(&tasks, &env, &mut policies, RunOptions::default(), &mut |_, _| Ok(()))?;
     Ok(robot_results(&tasks, &results, &geometry))

@@ -38,6 +38,7 @@ pub mod csv_format;
 pub mod curriculum;
 pub mod denormals;
 pub mod device;
+pub mod eval_robots;
 pub mod evaluator;
 pub mod json_f64;
 pub mod metrics;

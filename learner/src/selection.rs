@@ -17,10 +17,10 @@
 
 use crate::best_agent::Moment;
 use crate::csv_format::{append_rows, ser_2_decimals, ser_4_decimals_or_nan};
+use crate::eval_robots::{clean_env, dvst_agents};
 use dvnav_config::{Config, SelectionConfig};
 use dvnav_eval::{RoomSummary, RunOptions, room_summaries, room_tasks, run_tasks};
-use dvnav_nav::dvst::{Dvst, MetaRobot, VariedRobot};
-use dvnav_nav::policy::{MetaAgent, NavPolicy};
+use dvnav_nav::policy::NavPolicy;
 use dvnav_sim::room_set::RoomSet;
 use dvnav_sim::{Footprint, Room};
 use serde::{Deserialize, Serialize};
@@ -64,16 +64,7 @@ pub fn evaluate_selection(
     let robots: Vec<Option<(Footprint, f64)>> =
         sel.radii.iter().map(|&r| Some((Footprint::circle(r), r))).collect();
     let tasks = room_tasks(rooms, &robots, sel.episodes, seed);
-    let meta = MetaRobot::trained(&cfg.env)?;
-    let mut owned = sel
-        .radii
-        .iter()
-        .map(|&r| {
-            let agent = MetaAgent::from_safetensors(policy, cfg)?;
-            let robot = VariedRobot { meta, ..VariedRobot::new(Footprint::circle(r)) };
-            Dvst::for_run(agent, &cfg.env, robot)
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
+    let mut owned = dvst_agents(cfg, policy, &sel.radii)?;
     let mut policies: Vec<&mut dyn NavPolicy> =
         owned.iter_mut().map(|p| p as &mut dyn NavPolicy).collect();
     let env = local_task_env(cfg);
@@ -82,19 +73,14 @@ pub fn evaluate_selection(
     Ok((room_summaries(&tasks, &results), started.elapsed().as_secs_f64()))
 }
 
-/// The run's environment for the selection: local tasks, clean (no sensor noise or training
-/// robustness), no varied training robots or subgoals: the setting `dvnav eval --tasks local`
-/// measures the held-out suite in.
+/// The run's environment for the selection: local tasks in the clean simulator
+/// ([`clean_env`]), the setting `dvnav eval --tasks local` measures the held-out suite in.
 fn local_task_env(cfg: &Config) -> dvnav_config::EnvConfig {
     dvnav_config::EnvConfig {
-        dvst: None,
-        subgoals: None,
-        robustness: Default::default(),
-        lidar: dvnav_sim::LidarConfig { noise_std: 0.0, ..cfg.env.lidar.clone() },
         min_start_goal_distance: LOCAL_DISTANCE_M[0],
         max_start_goal_distance: LOCAL_DISTANCE_M[1],
         max_path_ratio: LOCAL_PATH_RATIO,
-        ..cfg.env.clone()
+        ..clean_env(cfg)
     }
 }
 
