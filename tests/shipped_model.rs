@@ -209,3 +209,56 @@ fn through_a_sensor_ahead_of_the_axle_as_documented() {
         assert!(r["success_rate"].as_f64().unwrap() >= 0.85, "{r}");
     }
 }
+
+/// The generalist candidate (`models/generalist-r0.2`, experiment g29 of docs/results.md) keeps
+/// the paper's kept checks and, on a sample of the held-out maps (local tasks, another seed than
+/// the suite's), its documented level: the full tables are `make heldout
+/// HELDOUT_ARGS="--checkpoint models/generalist-r0.2 --episodes 20 --map-episodes 50"`.
+const GENERALIST: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/models/generalist-r0.2");
+
+#[test]
+fn the_generalist_candidate_passes_the_kept_checks() {
+    let gate = eval_model(GENERALIST, &["--scenario", "gate"]);
+    assert_eq!(gate.len(), 12);
+    for row in &gate {
+        let r = row["radius"].as_f64().unwrap();
+        assert_eq!(row["outcome"], "success", "R = {r}: {row}");
+        assert_eq!(row["route"], if r <= 0.25 { "gate" } else { "left" }, "R = {r}: {row}");
+    }
+    let env3 = eval_model(GENERALIST, &["--room", "env3", "--episodes", "100", "--seed", "7"]);
+    let success = env3[0]["success_rate"].as_f64().unwrap();
+    assert!(success >= 0.99, "Env_3: {success} (documented: 1.00)");
+    let dynamic = eval_model(GENERALIST, &["--scenario", "dynamic"]);
+    assert_eq!(dynamic.len(), 3);
+    for r in &dynamic {
+        assert_eq!(r["success_rate"].as_f64(), Some(1.0), "{r}");
+    }
+}
+
+#[test]
+fn the_generalist_candidate_reaches_local_goals_in_the_held_out_maps() {
+    let root = env!("CARGO_MANIFEST_DIR");
+    let maps = ["aws_bookstore", "aws_small_house", "nav2_depot", "nav2_warehouse", "willow"];
+    let mut args: Vec<String> = Vec::new();
+    for m in maps {
+        args.extend(["--room".into(), format!("{root}/maps/{m}.yaml")]);
+    }
+    for a in ["--radii", "0.2,0.4", "--episodes", "20", "--seed", "11"].iter().chain(LOCAL_TASKS) {
+        args.push((*a).into());
+    }
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let rows = eval_model(GENERALIST, &args);
+    // Measured: 100 % at R = 0.2 and 96 % at R = 0.4 over these 100 episodes each (the paper
+    // agent: 100 and 94 %); floors a few episodes below.
+    for (radius, floor) in [(0.2, 0.97), (0.4, 0.92)] {
+        let of: Vec<&Value> =
+            rows.iter().filter(|r| (r["radius"].as_f64().unwrap() - radius).abs() < 1e-9).collect();
+        let episodes: f64 = of.iter().map(|r| r["episodes"].as_f64().unwrap()).sum();
+        let reached: f64 = of
+            .iter()
+            .map(|r| r["success_rate"].as_f64().unwrap() * r["episodes"].as_f64().unwrap())
+            .sum();
+        assert_eq!(episodes, 100.0, "{of:?}");
+        assert!(reached / episodes >= floor, "R = {radius}: {} < {floor}", reached / episodes);
+    }
+}
