@@ -54,13 +54,11 @@ fn navigates_every_curriculum_room() {
     assert!(by_key(&rows, "room", "env3")["success_rate"].as_f64().unwrap() >= 0.95);
 }
 
-#[test]
-fn gate_test_through_dvst() {
-    let rows = eval(&["--scenario", "gate"]);
+/// The paper's gate test, passed: every one of the twelve robots arrives, the small ones
+/// through the gate on a near-straight path, all the others round the wall's left end.
+fn assert_passes_the_gate_test(rows: &[Value]) {
     assert_eq!(rows.len(), 12, "the paper's twelve robots");
-    // Every robot arrives (the paper: 12 of 12): the small ones through the gate on a
-    // near-straight path, all the others round the wall's left end.
-    for row in &rows {
+    for row in rows {
         let r = row["radius"].as_f64().unwrap();
         assert_eq!(row["outcome"], "success", "R = {r}: {row}");
         let expected = if r <= 0.25 { "gate" } else { "left" };
@@ -69,6 +67,11 @@ fn gate_test_through_dvst() {
             assert!(row["path_length_m"].as_f64().unwrap() < 3.2, "{row}");
         }
     }
+}
+
+#[test]
+fn gate_test_through_dvst() {
+    assert_passes_the_gate_test(&eval(&["--scenario", "gate"]));
     // Without DVST the meta agent drives only its own size home.
     let plain = eval(&["--scenario", "gate", "--transfer", "none"]);
     let reached = plain.iter().filter(|r| r["outcome"] == "success").count();
@@ -218,13 +221,7 @@ const GENERALIST: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/models/generalist
 
 #[test]
 fn the_generalist_candidate_passes_the_kept_checks() {
-    let gate = eval_model(GENERALIST, &["--scenario", "gate"]);
-    assert_eq!(gate.len(), 12);
-    for row in &gate {
-        let r = row["radius"].as_f64().unwrap();
-        assert_eq!(row["outcome"], "success", "R = {r}: {row}");
-        assert_eq!(row["route"], if r <= 0.25 { "gate" } else { "left" }, "R = {r}: {row}");
-    }
+    assert_passes_the_gate_test(&eval_model(GENERALIST, &["--scenario", "gate"]));
     let env3 = eval_model(GENERALIST, &["--room", "env3", "--episodes", "100", "--seed", "7"]);
     let success = env3[0]["success_rate"].as_f64().unwrap();
     assert!(success >= 0.99, "Env_3: {success} (documented: 1.00)");
