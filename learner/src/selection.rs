@@ -168,6 +168,12 @@ mod tests {
         (cfg, sel)
     }
 
+    /// An untrained policy's weights (safetensors bytes).
+    fn fresh_policy(cfg: &Config) -> Vec<u8> {
+        let nets = crate::sac::SacNetworks::new(cfg, 3, &Device::Cpu).unwrap();
+        dvnav_nav::nets::varmap_to_safetensors(&nets.actor.vars).unwrap()
+    }
+
     #[test]
     fn the_rooms_are_drawn_round_robin_from_the_set() {
         let (_, sel) = config();
@@ -180,8 +186,7 @@ mod tests {
     fn one_row_per_room_and_robot_on_local_tasks_the_same_at_every_evaluation() {
         let (cfg, sel) = config();
         let rooms = selection_rooms(&sel).unwrap();
-        let nets = crate::sac::SacNetworks::new(&cfg, 3, &Device::Cpu).unwrap();
-        let policy = dvnav_nav::nets::varmap_to_safetensors(&nets.actor.vars).unwrap();
+        let policy = fresh_policy(&cfg);
         let (rows, wall) = evaluate_selection(&cfg, &sel, &rooms, &policy, 7).unwrap();
         assert!(wall > 0.0);
         let keys: Vec<(String, Option<f64>)> =
@@ -210,8 +215,7 @@ mod tests {
     fn select_csv_has_one_header_and_a_row_per_room_and_robot() {
         let (cfg, sel) = config();
         let rooms = selection_rooms(&sel).unwrap();
-        let nets = crate::sac::SacNetworks::new(&cfg, 3, &Device::Cpu).unwrap();
-        let policy = dvnav_nav::nets::varmap_to_safetensors(&nets.actor.vars).unwrap();
+        let policy = fresh_policy(&cfg);
         let (rows, wall) = evaluate_selection(&cfg, &sel, &rooms[..1], &policy, 7).unwrap();
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join(SELECT_CSV);
