@@ -32,12 +32,17 @@ struct Server {
 }
 
 impl Server {
+    /// `dvnav serve` with the shipped meta agent.
     fn start(dir: &Path, footprint: &str, extra: &[&str]) -> Server {
+        Server::start_with("models/meta-r0.2", dir, footprint, extra)
+    }
+
+    fn start_with(model: &str, dir: &Path, footprint: &str, extra: &[&str]) -> Server {
         let addr_file = dir.join("addr");
         let log = dir.join("serve.log");
         let child = Command::new(env!("CARGO_BIN_EXE_dvnav"))
             .args(["serve", "--listen", "127.0.0.1:0", "--checkpoint"])
-            .arg(repo("models/meta-r0.2"))
+            .arg(repo(model))
             .arg("--footprint")
             .arg(repo(footprint))
             .arg("--addr-file")
@@ -142,6 +147,9 @@ async fn a_robot_drives_through_the_service_and_changes_its_footprint() {
     );
     assert!(info.model_version.starts_with("fnv1a64:"), "{info:?}");
     assert_eq!((info.v_max, info.control_period_s), (0.5, 0.2));
+    // The shipped agent was trained to turn towards a subgoal behind it by itself: its config
+    // turns the rotation shim off (the paper agent's keeps it on, as below).
+    assert!(!info.rotation_shim, "{info:?}");
 
     // The same meta agent wrapped in DVST in this process answers the same, bit for bit.
     let (agent, _) = MetaAgent::load(&repo("models/meta-r0.2")).unwrap();
@@ -497,11 +505,13 @@ async fn many_robots_send_laser_scans_arrive_and_expire_and_bad_input_is_refused
 /// A robot with its own planner hands the controller a route (SetRoute) and sends its pose with
 /// every Act: the agent is given the lookahead point as its goal (the command is the one the
 /// same meta agent gives for that goal), the rotation shim turns a robot facing away, arrival is
-/// at the route's goal, and bad routes are refused naming the field, and counted.
+/// at the route's goal, and bad routes are refused naming the field, and counted. Served by the
+/// paper agent, whose config keeps the rotation shim on.
 #[tokio::test]
 async fn a_robot_follows_its_own_planners_route() {
+    const PAPER: &str = "models/paper-r0.2";
     let dir = tempfile::tempdir().unwrap();
-    let server = Server::start(dir.path(), "footprints/small-0.15.toml", &[]);
+    let server = Server::start_with(PAPER, dir.path(), "footprints/small-0.15.toml", &[]);
     let mut client = server.client().await;
     let info = client.info(InfoRequest::default()).await.unwrap().into_inner();
     assert!(info.lookahead_m > 0.0 && info.rotation_shim && info.refused == 0, "{info:?}");
@@ -535,7 +545,7 @@ async fn a_robot_follows_its_own_planners_route() {
     let l = set.lookahead_m;
     assert_eq!((r.subgoal_x, r.subgoal_y), (0.5 + l, 0.0), "{r:?}");
     assert!((r.remaining_m - 6.5).abs() < 1e-12 && !r.replan_wanted && !r.arrived, "{r:?}");
-    let (agent, _) = MetaAgent::load(&repo("models/meta-r0.2")).unwrap();
+    let (agent, _) = MetaAgent::load(&repo(PAPER)).unwrap();
     let robot = VariedRobot::load(&repo("footprints/small-0.15.toml")).unwrap();
     let mut direct = Dvst::new(agent, robot).unwrap().with_scan_range(Some([0.02, 10.0])).unwrap();
     let q = act(2);

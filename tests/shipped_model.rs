@@ -1,6 +1,9 @@
-//! The shipped meta agent (`models/meta-r0.2`) does on a fresh checkout what docs/results.md
-//! says it does: the curriculum rooms (random episodes and every evaluation route), the gate
-//! test through DVST, and the dynamic scenario. The floors are the documented figures less a
+//! The shipped agents do on a fresh checkout what docs/results.md says they do.
+//! `models/meta-r0.2`, the default agent (the generalist of issue 29, experiment g29): the
+//! curriculum rooms (random episodes and every evaluation route), the gate test through DVST, the
+//! dynamic scenario, samples of the held-out suite, long routes with a planner and a sensor ahead
+//! of the axle. `models/paper-r0.2`, the paper-faithful agent it replaced: the paper's gate test
+//! and its comparison with the SAC_RI baseline. The floors are the documented figures less a
 //! margin for evaluation seeds; a regression in the simulator, the networks, DVST or the
 //! evaluator that costs real performance fails here.
 
@@ -8,6 +11,7 @@ use serde_json::Value;
 use std::process::Command;
 
 const MODEL: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/models/meta-r0.2");
+const PAPER: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/models/paper-r0.2");
 const SAC_RI: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/models/sac-ri");
 
 fn eval(args: &[&str]) -> Vec<Value> {
@@ -36,9 +40,30 @@ fn by_key<'a>(rows: &'a [Value], key: &str, value: &str) -> &'a Value {
     })
 }
 
+/// The paper's rooms, Env_0 to Env_3, which the shipped agent met only in its last stages (its
+/// curriculum is generated rooms): measured 100 % in each over these 100 episodes.
 #[test]
-fn navigates_every_curriculum_room() {
-    let rows = eval(&["--episodes", "100", "--seed", "7"]);
+fn navigates_the_papers_rooms() {
+    let rooms = ["env0", "env1", "env2", "env3"];
+    let mut args = vec!["--episodes", "100", "--seed", "7"];
+    for room in &rooms {
+        args.extend(["--room", room]);
+    }
+    let rows = eval(&args);
+    assert_eq!(rows.len(), 4);
+    for r in &rows {
+        let success = r["success_rate"].as_f64().unwrap();
+        assert!(success >= 0.97, "{}: success {success}", r["room"]);
+    }
+    let env3 = by_key(&rows, "room", "env3")["success_rate"].as_f64().unwrap();
+    assert!(env3 >= 0.99, "Env_3: {env3} (the issue's kept check: 99 %)");
+}
+
+/// The paper agent on its own curriculum (`--scenario training` reads the checkpoint's): random
+/// episodes and every evaluation route of Env_0 to Env_3.
+#[test]
+fn the_paper_agent_navigates_every_curriculum_room_and_passes_the_gate_test() {
+    let rows = eval_model(PAPER, &["--episodes", "100", "--seed", "7"]);
     assert_eq!(rows.len(), 4);
     for r in &rows {
         let success = r["success_rate"].as_f64().unwrap();
@@ -52,6 +77,7 @@ fn navigates_every_curriculum_room() {
         );
     }
     assert!(by_key(&rows, "room", "env3")["success_rate"].as_f64().unwrap() >= 0.95);
+    assert_passes_the_gate_test(&eval_model(PAPER, &["--scenario", "gate"]));
 }
 
 /// The paper's gate test, passed: every one of the twelve robots arrives, the small ones
@@ -106,7 +132,8 @@ fn dynamic_obstacles_for_three_sizes() {
 }
 
 /// The paper's comparison: the radius-as-input baseline drives each robot with its own radius
-/// and fails where DVST does not (docs/results.md).
+/// and fails where DVST, on the paper agent trained on the same curriculum, does not
+/// (docs/results.md).
 #[test]
 fn the_sac_ri_baseline_fails_beyond_its_training_range_and_detours_small_robots() {
     let rows = eval_model(SAC_RI, &["--scenario", "gate"]);
@@ -123,7 +150,7 @@ fn the_sac_ri_baseline_fails_beyond_its_training_range_and_detours_small_robots(
         (small["outcome"].as_str(), small["route"].as_str()),
         (Some("success"), Some("left"))
     );
-    let dvst = eval(&["--scenario", "gate"]);
+    let dvst = eval_model(PAPER, &["--scenario", "gate"]);
     let reached = |rows: &[Value]| rows.iter().filter(|r| r["outcome"] == "success").count();
     assert!(
         reached(&dvst) > reached(&rows),
@@ -137,7 +164,8 @@ fn the_sac_ri_baseline_fails_beyond_its_training_range_and_detours_small_robots(
 /// rooms at held-out seeds and a real building's map, as the shipped agent drives them.
 #[test]
 fn held_out_sample_as_documented() {
-    // The paper's layout at held-out seeds: 40 of 40 documented, reversal rate 0.9-3.1 %.
+    // The paper's layout at held-out seeds: 40 of 40 measured, no reversal (the paper agent:
+    // 40 of 40, 0.9-3.1 %).
     let rows = eval(&[
         "--scenario",
         "generated",
@@ -156,7 +184,8 @@ fn held_out_sample_as_documented() {
     for r in &rows {
         assert!(r["reversal_rate"].as_f64().unwrap() < 0.08, "{r}");
     }
-    // The issue's command: documented 89 / 77 / 56 % at R = 0.2 / 0.4 / 0.6 m.
+    // Issue 29's command, any task: measured 87 / 81 / 56 % at R = 0.2 / 0.4 / 0.6 m (the
+    // paper agent: 89 / 77 / 56 %).
     let root = env!("CARGO_MANIFEST_DIR");
     let rows = eval(&["--room", "generated:corridors:9001", "--radii", "0.2:0.6:0.2"]);
     assert_eq!(rows.len(), 3, "one row per radius: {rows:?}");
@@ -164,17 +193,18 @@ fn held_out_sample_as_documented() {
     for (r, floor) in rows.iter().zip(floors) {
         assert!(r["success_rate"].as_f64().unwrap() >= floor, "{r}");
     }
-    // Willow Garage, local tasks, the meta robot (the suite: 96.4 % over five maps).
+    // Willow Garage, local tasks, the meta robot: measured 40 of 40 (the suite: 99.2 % over
+    // five maps).
     let willow = format!("{root}/maps/willow.yaml");
     let rows = eval(&[&["--room", &willow, "--episodes", "40"], LOCAL_TASKS].concat());
-    assert!(rows[0]["success_rate"].as_f64().unwrap() >= 0.85, "{}", rows[0]);
+    assert!(rows[0]["success_rate"].as_f64().unwrap() >= 0.9, "{}", rows[0]);
 }
 
 /// docs/results.md, "Through a whole building (issue 28)": long tasks in Willow Garage (goals
 /// 5-10 m away, any route the planner finds) followed along the planner's path, against the
-/// mapless agent (documented 100 / 98 / 96 % at R = 0.2 / 0.3 / 0.4 over 100 episodes, each
-/// task's time limit scaled by its route; these 40 give 100 and 97.5 % with the planner, 70.0
-/// and 62.5 % mapless).
+/// mapless agent, each task's time limit scaled by its route, the rotation shim off as the
+/// shipped agent's config has it: these 40 give 100 and 100 % with the planner, 72.5 and 82.5 %
+/// mapless (the paper agent, with its shim: 100 and 97.5 %, 70.0 and 62.5 %).
 #[test]
 fn long_tasks_in_willow_with_subgoals_as_documented() {
     let willow = format!("{}/maps/willow.yaml", env!("CARGO_MANIFEST_DIR"));
@@ -197,8 +227,8 @@ fn long_tasks_in_willow_with_subgoals_as_documented() {
 
 /// docs/results.md, "Real sensors (issue 27)": through a Hokuyo UST-10LX mounted 0.1 m ahead of
 /// the axle, the shipped agent does on Willow Garage's local tasks as with its own scan
-/// (documented 95 / 92 / 92 % at R = 0.2 / 0.3 / 0.4 over 100 episodes; 53-70 % when the beams
-/// the sensor does not see read 0 m).
+/// (measured 40 of 40 at R = 0.2 and 0.4; the paper agent 95 / 92 / 92 % at R = 0.2 / 0.3 / 0.4
+/// over 100 episodes, 53-70 % when the beams the sensor does not see read 0 m).
 #[test]
 fn through_a_sensor_ahead_of_the_axle_as_documented() {
     let root = env!("CARGO_MANIFEST_DIR");
@@ -209,31 +239,14 @@ fn through_a_sensor_ahead_of_the_axle_as_documented() {
     let rows = eval(&[args, LOCAL_TASKS].concat());
     assert_eq!(rows.len(), 2, "{rows:?}");
     for r in &rows {
-        assert!(r["success_rate"].as_f64().unwrap() >= 0.85, "{r}");
+        assert!(r["success_rate"].as_f64().unwrap() >= 0.9, "{r}");
     }
 }
 
-/// The generalist candidate (`models/generalist-r0.2`, experiment g29 of docs/results.md) keeps
-/// the paper's kept checks and, on a sample of the held-out maps (local tasks, another seed than
-/// the suite's), its documented level: the full tables are `make heldout
-/// HELDOUT_ARGS="--checkpoint models/generalist-r0.2 --episodes 20 --map-episodes 50"`.
-const GENERALIST: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/models/generalist-r0.2");
-
+/// A sample of the held-out maps (local tasks, another seed than the suite's) at the shipped
+/// agent's documented level: the full tables are `make heldout`.
 #[test]
-fn the_generalist_candidate_passes_the_kept_checks() {
-    assert_passes_the_gate_test(&eval_model(GENERALIST, &["--scenario", "gate"]));
-    let env3 = eval_model(GENERALIST, &["--room", "env3", "--episodes", "100", "--seed", "7"]);
-    let success = env3[0]["success_rate"].as_f64().unwrap();
-    assert!(success >= 0.99, "Env_3: {success} (documented: 1.00)");
-    let dynamic = eval_model(GENERALIST, &["--scenario", "dynamic"]);
-    assert_eq!(dynamic.len(), 3);
-    for r in &dynamic {
-        assert_eq!(r["success_rate"].as_f64(), Some(1.0), "{r}");
-    }
-}
-
-#[test]
-fn the_generalist_candidate_reaches_local_goals_in_the_held_out_maps() {
+fn reaches_local_goals_in_the_held_out_maps() {
     let root = env!("CARGO_MANIFEST_DIR");
     let maps = ["aws_bookstore", "aws_small_house", "nav2_depot", "nav2_warehouse", "willow"];
     let mut args: Vec<String> = Vec::new();
@@ -244,7 +257,7 @@ fn the_generalist_candidate_reaches_local_goals_in_the_held_out_maps() {
         args.push((*a).into());
     }
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
-    let rows = eval_model(GENERALIST, &args);
+    let rows = eval(&args);
     // Measured: 100 % at R = 0.2 and 96 % at R = 0.4 over these 100 episodes each (the paper
     // agent: 100 and 94 %); floors a few episodes below.
     for (radius, floor) in [(0.2, 0.97), (0.4, 0.92)] {

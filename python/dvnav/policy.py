@@ -102,5 +102,18 @@ class Policy:
     @property
     def env_config(self) -> dict[str, Any]:
         """The model's ``[env]`` section: ``gymnasium.make("dvnav/Nav-v0", **policy.env_config)``
-        makes environments it was trained for."""
+        makes environments it was trained for, with its training-time robots of other sizes
+        (``dvst``), subgoal share (``subgoals``) and perturbations (``robustness``) if it had
+        any; :attr:`eval_env_config` is the environment ``dvnav eval`` measures it in."""
         return json.loads(self._core.env_config)
+
+    @property
+    def eval_env_config(self) -> dict[str, Any]:
+        """The environment ``dvnav eval`` drives the model in by default: its ``[env]`` section
+        without what only training draws (``dvst``'s robots of other sizes, ``subgoals``'
+        share of planner-followed episodes, ``robustness``' perturbations) and with a noiseless
+        LiDAR, as ``dvnav eval`` builds it (src/cli/eval.rs, ``eval_env``). The same seed gives
+        the same episodes as ``dvnav eval --seed``."""
+        env = {k: v for k, v in self.env_config.items() if k not in ("dvst", "subgoals", "robustness")}
+        env["lidar"] = {**env["lidar"], "noise_std": 0.0}
+        return env

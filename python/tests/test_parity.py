@@ -39,7 +39,7 @@ def test_episodes_of_dvnav_eval_replay_step_for_step_in_python(tmp_path, dvnav_b
     rows = list(csv.DictReader(open(out / "episodes.csv")))
     assert len(rows) >= 12
     policy = dvnav.Policy.load(str(MODEL))
-    env_config = policy.env_config
+    env_config = policy.eval_env_config
     checked = 0
     by_task = {}
     for row in rows:
