@@ -6,25 +6,34 @@
 //! stop. (Before, it stopped at the budget: 1 update.)
 
 use serde_json::Value;
+use std::ffi::OsStr;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 use support::wait_exit;
 
 mod support;
 
+/// `dvnav train ARGS`, its stderr (the progress and summary) into `log`.
+fn spawn_train(args: &[&OsStr], log: &std::path::Path) -> std::process::Child {
+    Command::new(env!("CARGO_BIN_EXE_dvnav"))
+        .arg("train")
+        .args(args)
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(log).unwrap())
+        .spawn()
+        .unwrap()
+}
+
 #[test]
 fn a_short_default_run_does_the_updates_its_steps_allow() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
     let log_path = dir.path().join("train.log");
-    let mut train = Command::new(env!("CARGO_BIN_EXE_dvnav"))
-        .args(["train", "--actors", "2", "--steps", "3000", "--progress-every-s", "30", "--out"])
-        .arg(&out)
-        .env("RUST_LOG", "info")
-        .stdout(Stdio::null())
-        .stderr(std::fs::File::create(&log_path).unwrap())
-        .spawn()
-        .unwrap();
+    let args = ["--actors", "2", "--steps", "3000", "--progress-every-s", "30"];
+    let mut args: Vec<&OsStr> = args.iter().map(OsStr::new).collect();
+    args.extend([OsStr::new("--out"), out.as_os_str()]);
+    let mut train = spawn_train(&args, &log_path);
     let log = || std::fs::read_to_string(&log_path).unwrap_or_default();
     let exit = wait_exit(&mut train, "dvnav train", Duration::from_secs(400), log);
     assert!(exit.success(), "{}", log());
@@ -49,4 +58,73 @@ fn a_short_default_run_does_the_updates_its_steps_allow() {
     assert_eq!(s["clean_shutdown"], true, "{s}");
     let learner_log = std::fs::read_to_string(out.join("logs").join("learner.log")).unwrap();
     assert!(learner_log.contains("owed updates done"), "{learner_log}");
+}
+
+/// `--max-wall-s` (run.max_wall_s): a run whose step budget is far away stops when its time is
+/// spent, as Ctrl-C would stop it: a clean shutdown with a final checkpoint and the summaries.
+#[test]
+fn a_run_stops_cleanly_when_its_wall_clock_budget_is_spent() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let log_path = dir.path().join("train.log");
+    let started = std::time::Instant::now();
+    let args = ["--actors", "1", "--steps", "100000000", "--max-wall-s", "6"];
+    let mut args: Vec<&OsStr> = args.iter().map(OsStr::new).collect();
+    args.extend([OsStr::new("--out"), out.as_os_str()]);
+    let mut train = spawn_train(&args, &log_path);
+    let log = || std::fs::read_to_string(&log_path).unwrap_or_default();
+    let exit = wait_exit(&mut train, "dvnav train", Duration::from_secs(300), log);
+    assert!(exit.success(), "{}", log());
+    assert!(started.elapsed() >= Duration::from_secs(6), "stopped before its time: {}", log());
+    let s: Value =
+        serde_json::from_slice(&std::fs::read(out.join("run_summary.json")).unwrap()).unwrap();
+    assert_eq!(s["clean_shutdown"], true, "{s}");
+    assert!(s["transitions_received"].as_u64().unwrap() < 100_000_000, "{s}");
+    let learner_log = std::fs::read_to_string(out.join("logs").join("learner.log")).unwrap();
+    assert!(learner_log.contains("run.max_wall_s reached"), "{learner_log}");
+    // A run that trained at all ends with a checkpoint of its last update.
+    if s["updates"].as_u64().unwrap() > 0 {
+        assert!(dvnav_learner::checkpoint::latest(&out).unwrap().is_some(), "{s}");
+    }
+    let cfg = dvnav_config::Config::load(&out.join("config.toml")).unwrap();
+    assert_eq!(cfg.run.max_wall_s, 6.0, "the run's config records the budget");
+}
+
+/// `--seeds 2`, each seed stopped by its wall-clock budget: every seed keeps its best agent by
+/// its own training-time evaluation, and the higher-scoring one becomes OUT/best, named in
+/// seeds_summary.json.
+#[test]
+fn of_several_seeds_the_best_agent_by_their_evaluation_is_kept() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("runs");
+    let config = dir.path().join("quick-eval.toml");
+    std::fs::write(
+        &config,
+        "[sac]\nlearning_starts = 200\n[learner]\neval_every_updates = 20\neval_episodes = 2\n",
+    )
+    .unwrap();
+    let log_path = dir.path().join("train.log");
+    let args = ["--actors", "1", "--seeds", "2", "--steps", "100000000", "--max-wall-s", "8"];
+    let mut args: Vec<&OsStr> = args.iter().map(OsStr::new).collect();
+    args.extend([OsStr::new("--config"), config.as_os_str(), OsStr::new("--out"), out.as_os_str()]);
+    let mut train = spawn_train(&args, &log_path);
+    let log = || std::fs::read_to_string(&log_path).unwrap_or_default();
+    let exit = wait_exit(&mut train, "dvnav train --seeds 2", Duration::from_secs(400), log);
+    assert!(exit.success(), "{}", log());
+    let summary: Value =
+        serde_json::from_slice(&std::fs::read(out.join("seeds_summary.json")).unwrap()).unwrap();
+    let best = &summary["best"];
+    let seed = best["seed"].as_u64().unwrap_or_else(|| panic!("no best seed: {summary}"));
+    let score = |s: u64| -> Option<f64> {
+        let path = out.join(format!("seed-{s}")).join("best").join("best.json");
+        let record: Value = serde_json::from_slice(&std::fs::read(path).ok()?).ok()?;
+        record["score"].as_f64()
+    };
+    let other = if seed == 1 { 2 } else { 1 };
+    assert_eq!(best["score"].as_f64(), score(seed), "{summary}");
+    assert!(score(other).is_none_or(|s| s <= score(seed).unwrap()), "{summary}");
+    let kept = std::fs::read(out.join("best").join("policy.safetensors")).unwrap();
+    let from = out.join(format!("seed-{seed}")).join("best").join("policy.safetensors");
+    assert_eq!(kept, std::fs::read(from).unwrap(), "OUT/best is the best seed's agent");
+    assert!(log().contains(&format!("best agent: seed {seed}")), "{}", log());
 }

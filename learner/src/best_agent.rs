@@ -150,6 +150,26 @@ impl BestAgent {
         Ok(Some(self.kept.insert(record)))
     }
 
+    /// Keeps the best agent of another run (`from`, a run directory with a `best/`) as this
+    /// run's, whole: a config trained with several seeds keeps its best seed's agent
+    /// ([`best_of_runs`]). Returns what it kept.
+    pub fn adopt(&mut self, from: &Path) -> anyhow::Result<&BestRecord> {
+        use anyhow::Context;
+        let dir = from.join(BEST_DIR);
+        let read = |name: &str| {
+            std::fs::read(dir.join(name))
+                .with_context(|| format!("cannot read {}", dir.join(name).display()))
+        };
+        let record: BestRecord = serde_json::from_slice(&read(BEST_JSON)?).with_context(|| {
+            format!("{}: not a best-agent record", dir.join(BEST_JSON).display())
+        })?;
+        let policy = read(crate::checkpoint::POLICY_FILE)?;
+        let config = String::from_utf8(read("config.toml")?)
+            .with_context(|| format!("{}: not UTF-8", dir.join("config.toml").display()))?;
+        self.write(&record, &policy, &config)?;
+        Ok(self.kept.insert(record))
+    }
+
     /// Writes the agent into `best.tmp`, then swaps it in, so `best/` is always whole.
     fn write(&self, record: &BestRecord, policy: &[u8], config_toml: &str) -> anyhow::Result<()> {
         use anyhow::Context;
@@ -176,6 +196,22 @@ impl BestAgent {
         }
         Ok(())
     }
+}
+
+/// Of several runs of one config (its seeds), the one whose `best/` scored highest on the
+/// runs' own evaluation, and its record: `(index into runs, record)`. Runs with no `best/` do
+/// not count; of equal scores the first run's stands. Only training-time evaluations decide:
+/// the same evaluation, so the same score, for every seed of the config.
+pub fn best_of_runs(runs: &[PathBuf]) -> Option<(usize, BestRecord)> {
+    let mut best: Option<(usize, BestRecord)> = None;
+    for (i, run) in runs.iter().enumerate() {
+        if let Some(record) = BestAgent::open(run).kept
+            && best.as_ref().is_none_or(|(_, b)| record.score > b.score)
+        {
+            best = Some((i, record));
+        }
+    }
+    best
 }
 
 #[cfg(test)]
@@ -274,5 +310,34 @@ mod tests {
         let again = BestAgent::open(dir.path());
         let k = again.kept().unwrap();
         assert!(k.updates == 300 && k.rooms_success.is_nan() && k.rooms == 0, "{k:?}");
+    }
+
+    #[test]
+    fn the_best_of_several_runs_is_the_highest_kept_score_and_is_adopted_whole() {
+        let dir = tempfile::tempdir().unwrap();
+        let runs: Vec<PathBuf> = (1..=4).map(|s| dir.path().join(format!("seed-{s}"))).collect();
+        let scores = [Some(0.7), Some(0.9), None, Some(0.9)];
+        for (run, score) in runs.iter().zip(scores) {
+            std::fs::create_dir_all(run).unwrap();
+            if let Some(s) = score {
+                let policy = format!("weights of {}", run.display());
+                let mut best = BestAgent::open(run);
+                best.offer(at(100), policy.as_bytes(), rooms(&[room(s, 5)]), "a = 1\n").unwrap();
+            }
+        }
+        // seed-2 and seed-4 tie: the first stands; seed-3 kept nothing and does not count.
+        let (i, record) = best_of_runs(&runs).unwrap();
+        assert_eq!((i, record.score), (1, 0.9));
+        assert_eq!(best_of_runs(&runs[2..3]), None);
+        let mut all = BestAgent::open(dir.path());
+        assert_eq!(all.adopt(&runs[i]).unwrap(), &record);
+        let kept = dir.path().join(BEST_DIR);
+        let want = format!("weights of {}", runs[1].display());
+        assert_eq!(std::fs::read(kept.join("policy.safetensors")).unwrap(), want.as_bytes());
+        assert_eq!(BestAgent::open(dir.path()).kept(), Some(&record));
+        // A run without a best agent cannot be adopted; what was kept stays whole.
+        let err = all.adopt(&runs[2]).unwrap_err().to_string();
+        assert!(err.contains("best.json"), "{err}");
+        assert_eq!(std::fs::read(kept.join("policy.safetensors")).unwrap(), want.as_bytes());
     }
 }

@@ -168,15 +168,29 @@ pub async fn run(
         state.shutdown_signal().cancelled_owned(),
     ));
 
-    // Until the budget is reached or we are told to stop.
+    // Until the budget is reached or we are told to stop, or the wall-clock budget is spent.
     let done = state.done_signal();
     tokio::pin!(shutdown);
+    let wall_budget = cfg.run.wall_budget();
+    let out_of_time = async move {
+        match wall_budget {
+            Some(budget) => tokio::time::sleep_until((started + budget).into()).await,
+            None => std::future::pending().await,
+        }
+    };
     let mut interrupted = tokio::select! {
         () = done.cancelled() => false,
-        () = &mut shutdown => true,
+        () = &mut shutdown => {
+            tracing::info!("shutdown requested; telling actors to stop");
+            true
+        }
+        // As Ctrl-C: the time is spent, so the updates the replay ratio owes are not trained.
+        () = out_of_time => {
+            tracing::info!(max_wall_s = cfg.run.max_wall_s, "run.max_wall_s reached; telling actors to stop");
+            true
+        }
     };
     if interrupted {
-        tracing::info!("shutdown requested; telling actors to stop");
         state.finish();
     }
     // Let actors flush their last batches and leave.

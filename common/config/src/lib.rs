@@ -51,11 +51,23 @@ pub struct RunConfig {
     pub seed: u64,
     /// Environment steps (transitions received by the learner) after which the run stops.
     pub steps: u64,
+    /// Wall-clock seconds after which the learner stops the run as Ctrl-C would (checkpoint,
+    /// summaries, `best/` kept), counted from the learner's start (again from a resume's); 0:
+    /// no limit. For runs whose agent is kept by its evaluation (`runs/NAME/best`), where the
+    /// step budget is only an upper bound.
+    pub max_wall_s: f64,
 }
 
 impl Default for RunConfig {
     fn default() -> Self {
-        Self { seed: 1, steps: 500_000 }
+        Self { seed: 1, steps: 500_000, max_wall_s: 0.0 }
+    }
+}
+
+impl RunConfig {
+    /// The wall-clock budget, if any.
+    pub fn wall_budget(&self) -> Option<std::time::Duration> {
+        (self.max_wall_s > 0.0).then(|| std::time::Duration::from_secs_f64(self.max_wall_s))
     }
 }
 
@@ -859,6 +871,7 @@ impl Config {
         if self.run.steps == 0 {
             return Err(bad("run.steps", "must be at least 1"));
         }
+        non_negative("run.max_wall_s", self.run.max_wall_s)?;
         Ok(())
     }
 }
@@ -1033,6 +1046,18 @@ mod tests {
         let text = cfg.to_toml_string();
         assert_eq!(Config::from_toml_str(&text).unwrap(), cfg);
         assert_eq!(cfg.network.conv_output_len(540), Some((32, 32)));
+    }
+
+    #[test]
+    fn the_wall_budget_is_off_by_default_and_refuses_a_negative_or_endless_one() {
+        assert_eq!(Config::default().run.wall_budget(), None);
+        let cfg = Config::from_toml_str("[run]\nmax_wall_s = 1800\n").unwrap();
+        assert_eq!(cfg.run.wall_budget(), Some(std::time::Duration::from_secs(1800)));
+        for bad in ["-1", "inf", "nan"] {
+            let text = format!("[run]\nmax_wall_s = {bad}\n");
+            let err = Config::from_toml_str(&text).unwrap_err().to_string();
+            assert!(err.contains("run.max_wall_s"), "{bad}: {err}");
+        }
     }
 
     #[test]

@@ -48,10 +48,16 @@ pub struct TrainArgs {
     /// Seed; overrides run.seed.
     #[arg(long)]
     pub seed: Option<u64>,
+    /// Stop the run after this many wall-clock seconds, as Ctrl-C would (final checkpoint,
+    /// summaries, `best/` kept); overrides run.max_wall_s. With `--seeds`, per seed.
+    #[arg(long, value_name = "SECONDS")]
+    pub max_wall_s: Option<f64>,
     /// Train the same config with this many seeds, one after the other (seed, seed+1, …), each
     /// in OUT/seed-<seed>/, then print a table and write OUT/seeds_summary.json (stage reached,
-    /// when the last room reached the threshold, wall time). `dvnav plot curves OUT/seed-*`
-    /// draws them together.
+    /// when the last room reached the threshold, wall time). The seeds' best agents (each
+    /// run's `best/`, kept by its training-time evaluation) are compared by that evaluation's
+    /// score and the highest becomes OUT/best (`best` in the summary). `dvnav plot curves
+    /// OUT/seed-*` draws them together.
     #[arg(long, value_name = "N", conflicts_with = "resume")]
     pub seeds: Option<usize>,
     /// End each run once the last room reaches the curriculum threshold over a full window
@@ -107,6 +113,9 @@ pub(super) fn run_one(args: TrainArgs) -> anyhow::Result<ExitCode> {
     }
     if let Some(s) = args.seed {
         cfg.run.seed = s;
+    }
+    if let Some(s) = args.max_wall_s {
+        cfg.run.max_wall_s = s;
     }
     if args.stop_when_skilled {
         cfg.curriculum.stop_when_skilled = true;

@@ -40,9 +40,31 @@ pub(super) fn run_seeds(args: TrainArgs, n: usize) -> anyhow::Result<ExitCode> {
     }
     let skilled = rows.iter().filter(|r| r.skilled_env_steps.is_some()).count();
     eprintln!("{skilled} of {n} seeds reached the last room's threshold");
-    let summary = SeedsSummary { seeds: rows, skilled, runs: n };
+    let best = keep_best_seed(&out, &rows)?;
+    let summary = SeedsSummary { seeds: rows, skilled, runs: n, best };
     std::fs::write(out.join("seeds_summary.json"), serde_json::to_vec_pretty(&summary)?)?;
     Ok(if all_ok { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+}
+
+/// Of the seeds' best agents (`seed-S/best`, kept by each run's own training-time evaluation),
+/// the highest-scoring becomes `OUT/best`: the config's agent, picked among its seeds on the
+/// same evaluation. `None` when no seed kept one (no evaluation ran).
+fn keep_best_seed(out: &Path, rows: &[SeedRow]) -> anyhow::Result<Option<BestSeed>> {
+    use dvnav_learner::best_agent::{BEST_DIR, BestAgent, best_of_runs};
+    let dirs: Vec<std::path::PathBuf> = rows.iter().map(|r| r.run_dir.clone().into()).collect();
+    let Some((i, record)) = best_of_runs(&dirs) else {
+        eprintln!("no seed kept a best agent (no training-time evaluation ran)");
+        return Ok(None);
+    };
+    BestAgent::open(out).adopt(&dirs[i])?;
+    let seed = rows[i].seed;
+    eprintln!(
+        "best agent: seed {seed} (score {:.3}, {} updates) -> {}",
+        record.score,
+        record.updates,
+        out.join(BEST_DIR).display()
+    );
+    Ok(Some(BestSeed { seed, record }))
 }
 
 /// `seeds_summary.json`.
@@ -52,6 +74,16 @@ struct SeedsSummary {
     /// Seeds whose last room reached the curriculum threshold.
     skilled: usize,
     runs: usize,
+    /// The seed whose best agent is `OUT/best`, and why it was kept.
+    best: Option<BestSeed>,
+}
+
+/// The seed whose best agent scored highest.
+#[derive(Serialize)]
+struct BestSeed {
+    seed: u64,
+    #[serde(flatten)]
+    record: dvnav_learner::best_agent::BestRecord,
 }
 
 /// One seed's line of `seeds_summary.json`.
