@@ -201,6 +201,23 @@ fn latest(mut records: Vec<EpisodeRecord>, max: usize) -> Vec<EpisodeRecord> {
     records
 }
 
+/// The room an episode was logged in, rebuilt from its logged name as `dvnav eval --room`
+/// builds it: a built-in or a generated room (a generator seed names its whole room). A map or
+/// room file is logged by its own name, not its path: drawn without the room.
+fn room_of(name: &str) -> Option<dvnav_sim::RoomSpec> {
+    match Room::load(name) {
+        Ok(rooms) if rooms.len() == 1 => Some(rooms[0].spec().clone()),
+        Ok(_) => {
+            tracing::warn!(room = %name, "drawing paths without the room: its name loads several");
+            None
+        }
+        Err(e) => {
+            tracing::warn!(room = %name, error = %e, "drawing paths without the room");
+            None
+        }
+    }
+}
+
 /// Reads the paths of `records` (grouped by file, so each file is read once) and groups them
 /// by room.
 fn panels(records: &[EpisodeRecord]) -> anyhow::Result<Vec<RoomPanel>> {
@@ -223,13 +240,7 @@ fn panels(records: &[EpisodeRecord]) -> anyhow::Result<Vec<RoomPanel>> {
         };
         let panel = rooms.entry(s.room.clone()).or_insert_with(|| RoomPanel {
             name: s.room.clone(),
-            room: match Room::builtin(&s.room) {
-                Ok(room) => Some(room.spec().clone()),
-                Err(e) => {
-                    tracing::warn!(room = %s.room, error = %e, "drawing paths without the room");
-                    None
-                }
-            },
+            room: room_of(&s.room),
             trajectories: Vec::new(),
         });
         panel.trajectories.push(Trajectory {
@@ -286,6 +297,15 @@ mod tests {
         assert_eq!(footprint_radius("circle r=0.2"), Some(0.2));
         assert_eq!(footprint_radius("rect 0.4x0.3"), None);
         assert_eq!(footprint_radius("circle r=-1"), None);
+    }
+
+    #[test]
+    fn built_in_and_generated_rooms_are_drawn_and_a_map_name_is_not() {
+        assert_eq!(room_of("env3").map(|r| r.name), Some("env3".to_string()));
+        let generated = room_of("generated:paper:8000").expect("a generated room rebuilds");
+        let again = Room::load("generated:paper:8000").unwrap();
+        assert_eq!(&generated, again[0].spec(), "the same room as dvnav eval drove");
+        assert_eq!(room_of("willow"), None, "a map is logged by name, not by path");
     }
 
     #[test]
