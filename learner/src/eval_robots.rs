@@ -27,14 +27,7 @@ pub fn dvst_agents(
         .collect()
 }
 
-/// The run's environment, clean: no LiDAR noise, no training robustness, no varied training
-/// robots (`env.dvst`) and no subgoals.
+/// The run's environment, clean ([`EnvConfig::clean`]).
 pub fn clean_env(cfg: &Config) -> EnvConfig {
-    EnvConfig {
-        dvst: None,
-        subgoals: None,
-        robustness: Default::default(),
-        lidar: dvnav_sim::LidarConfig { noise_std: 0.0, ..cfg.env.lidar.clone() },
-        ..cfg.env.clone()
-    }
+    cfg.env.clean()
 }

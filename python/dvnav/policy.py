@@ -112,8 +112,6 @@ class Policy:
         """The environment ``dvnav eval`` drives the model in by default: its ``[env]`` section
         without what only training draws (``dvst``'s robots of other sizes, ``subgoals``'
         share of planner-followed episodes, ``robustness``' perturbations) and with a noiseless
-        LiDAR, as ``dvnav eval`` builds it (src/cli/eval.rs, ``eval_env``). The same seed gives
+        LiDAR, as ``dvnav eval`` builds it (``EnvConfig::clean`` in Rust). The same seed gives
         the same episodes as ``dvnav eval --seed``."""
-        env = {k: v for k, v in self.env_config.items() if k not in ("dvst", "subgoals", "robustness")}
-        env["lidar"] = {**env["lidar"], "noise_std": 0.0}
-        return env
+        return json.loads(self._core.eval_env_config)

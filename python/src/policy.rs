@@ -100,6 +100,12 @@ impl Policy {
         serde_json::to_string(&self.env).expect("the env config serializes")
     }
 
+    /// The same, clean, as `dvnav eval` drives the agent by default (`EnvConfig::clean`).
+    #[getter]
+    fn eval_env_config(&self) -> String {
+        serde_json::to_string(&self.env.clean()).expect("the env config serializes")
+    }
+
     /// The weights file read.
     #[getter]
     fn path(&self) -> String {

@@ -246,10 +246,10 @@ fn parse_pair(s: &str) -> Result<[f64; 2], String> {
 /// The simulator's constants for this evaluation: the checkpoint's, with the robustness
 /// perturbations of the command line (none by default) instead of any of its training.
 fn eval_env(args: &EvalArgs, cfg: &Config) -> anyhow::Result<dvnav_config::EnvConfig> {
-    let mut env = cfg.env.clone();
-    // A run's varied training robots (env.dvst) are not an evaluation setting: every episode
-    // drives the robot the command names.
-    env.dvst = None;
+    // What only training draws (varied robots, perturbations, subgoal shares) is not an
+    // evaluation setting: every episode drives the robot the command names, with the noise,
+    // perturbations and subgoals of the command line.
+    let mut env = cfg.env.clean();
     env.lidar.noise_std = args.noise_std;
     match args.tasks {
         Some(Tasks::Local) => {
@@ -273,7 +273,7 @@ fn eval_env(args: &EvalArgs, cfg: &Config) -> anyhow::Result<dvnav_config::EnvCo
     });
     let plan = subgoals == Subgoals::Planner || args.tasks == Some(Tasks::Long);
     env.subgoals = plan.then(|| {
-        let base = env.subgoals.clone().unwrap_or_default();
+        let base = cfg.env.subgoals.clone().unwrap_or_default();
         dvnav_sim::subgoal::SubgoalConfig {
             follow: subgoals == Subgoals::Planner,
             // A run's mixed training share is not an evaluation setting: every task the same way.

@@ -220,4 +220,17 @@ impl EnvConfig {
     pub fn obs_layout(&self) -> ObsLayout {
         ObsLayout { beams: self.lidar.beams, radius_input: self.radius_input }
     }
+
+    /// These constants without what only training draws, as evaluations drive an agent: no
+    /// LiDAR noise, no robustness perturbations, no varied training robots (`dvst`) and no
+    /// subgoals (`dvnav eval` adds back what its command line asks for).
+    pub fn clean(&self) -> EnvConfig {
+        EnvConfig {
+            dvst: None,
+            subgoals: None,
+            robustness: Default::default(),
+            lidar: LidarConfig { noise_std: 0.0, ..self.lidar.clone() },
+            ..self.clone()
+        }
+    }
 }
