@@ -6,23 +6,30 @@
 //! stop. (Before, it stopped at the budget: 1 update.)
 
 use serde_json::Value;
-use std::ffi::OsStr;
+use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 use support::wait_exit;
 
 mod support;
 
-/// `dvnav train ARGS`, its stderr (the progress and summary) into `log`.
-fn spawn_train(args: &[&OsStr], log: &std::path::Path) -> std::process::Child {
-    Command::new(env!("CARGO_BIN_EXE_dvnav"))
-        .arg("train")
-        .args(args)
+/// `dvnav train FLAGS --PATH_FLAG PATH…` to its end, its stderr (the progress and summary) into
+/// `log`; fails the test unless it exits successfully within `limit`.
+fn train_to_end(flags: &[&str], paths: &[(&str, &Path)], log: &Path, limit: Duration) {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_dvnav"));
+    cmd.arg("train").args(flags);
+    for (flag, path) in paths {
+        cmd.arg(flag).arg(path);
+    }
+    let mut train = cmd
         .env("RUST_LOG", "info")
         .stdout(Stdio::null())
         .stderr(std::fs::File::create(log).unwrap())
         .spawn()
-        .unwrap()
+        .unwrap();
+    let read_log = || std::fs::read_to_string(log).unwrap_or_default();
+    let exit = wait_exit(&mut train, "dvnav train", limit, read_log);
+    assert!(exit.success(), "{}", read_log());
 }
 
 #[test]
@@ -30,13 +37,8 @@ fn a_short_default_run_does_the_updates_its_steps_allow() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
     let log_path = dir.path().join("train.log");
-    let args = ["--actors", "2", "--steps", "3000", "--progress-every-s", "30"];
-    let mut args: Vec<&OsStr> = args.iter().map(OsStr::new).collect();
-    args.extend([OsStr::new("--out"), out.as_os_str()]);
-    let mut train = spawn_train(&args, &log_path);
-    let log = || std::fs::read_to_string(&log_path).unwrap_or_default();
-    let exit = wait_exit(&mut train, "dvnav train", Duration::from_secs(400), log);
-    assert!(exit.success(), "{}", log());
+    let flags = ["--actors", "2", "--steps", "3000", "--progress-every-s", "30"];
+    train_to_end(&flags, &[("--out", &out)], &log_path, Duration::from_secs(400));
     let s: Value =
         serde_json::from_slice(&std::fs::read(out.join("run_summary.json")).unwrap()).unwrap();
     let cfg = dvnav_config::Config::default();
@@ -68,13 +70,9 @@ fn a_run_stops_cleanly_when_its_wall_clock_budget_is_spent() {
     let out = dir.path().join("run");
     let log_path = dir.path().join("train.log");
     let started = std::time::Instant::now();
-    let args = ["--actors", "1", "--steps", "100000000", "--max-wall-s", "6"];
-    let mut args: Vec<&OsStr> = args.iter().map(OsStr::new).collect();
-    args.extend([OsStr::new("--out"), out.as_os_str()]);
-    let mut train = spawn_train(&args, &log_path);
+    let flags = ["--actors", "1", "--steps", "100000000", "--max-wall-s", "6"];
+    train_to_end(&flags, &[("--out", &out)], &log_path, Duration::from_secs(300));
     let log = || std::fs::read_to_string(&log_path).unwrap_or_default();
-    let exit = wait_exit(&mut train, "dvnav train", Duration::from_secs(300), log);
-    assert!(exit.success(), "{}", log());
     assert!(started.elapsed() >= Duration::from_secs(6), "stopped before its time: {}", log());
     let s: Value =
         serde_json::from_slice(&std::fs::read(out.join("run_summary.json")).unwrap()).unwrap();
@@ -104,13 +102,10 @@ fn of_several_seeds_the_best_agent_by_their_evaluation_is_kept() {
     )
     .unwrap();
     let log_path = dir.path().join("train.log");
-    let args = ["--actors", "1", "--seeds", "2", "--steps", "100000000", "--max-wall-s", "8"];
-    let mut args: Vec<&OsStr> = args.iter().map(OsStr::new).collect();
-    args.extend([OsStr::new("--config"), config.as_os_str(), OsStr::new("--out"), out.as_os_str()]);
-    let mut train = spawn_train(&args, &log_path);
+    let flags = ["--actors", "1", "--seeds", "2", "--steps", "100000000", "--max-wall-s", "8"];
+    let paths = [("--config", config.as_path()), ("--out", out.as_path())];
+    train_to_end(&flags, &paths, &log_path, Duration::from_secs(400));
     let log = || std::fs::read_to_string(&log_path).unwrap_or_default();
-    let exit = wait_exit(&mut train, "dvnav train --seeds 2", Duration::from_secs(400), log);
-    assert!(exit.success(), "{}", log());
     let summary: Value =
         serde_json::from_slice(&std::fs::read(out.join("seeds_summary.json")).unwrap()).unwrap();
     let best = &summary["best"];
