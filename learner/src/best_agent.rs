@@ -14,8 +14,12 @@
 //! whatever its episodes), or with `[learner.selection]` over the selection's rows (each room
 //! and robot one vote, [`crate::selection`]) instead; with the gate test, the mean of that and
 //! the share of the gate's robots that pass, so the kept check weighs as much as the rooms
-//! together. A later evaluation that scores as high replaces the kept one (more training, same
-//! score).
+//! together. With a gate bar (`learner.selection.gate_min_passed`) the gate is a threshold
+//! instead: an agent that passes at least that many robots ranks above every agent that
+//! passes fewer, and the rooms (or the selection's rows) alone score it. Why: averaged, one
+//! more gate robot (1/12 of half the score) outweighed 7 points of local success, and g32
+//! kept a 12-of-12 agent that was worse in the held-out rooms than its 11-of-12 peers. A later
+//! evaluation that ranks as high replaces the kept one (more training, same score).
 
 use dvnav_eval::{RobotResult, RoomSummary};
 use serde::{Deserialize, Serialize};
@@ -50,6 +54,22 @@ pub struct BestRecord {
     /// Mean success rate over the selection's rows, with `[learner.selection]`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub select_success: Option<f64>,
+    /// The gate bar it was ranked by (`learner.selection.gate_min_passed`), when there was one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gate_bar: Option<usize>,
+}
+
+impl BestRecord {
+    /// Whether it clears its gate bar (always, without one).
+    pub fn clears_gate_bar(&self) -> bool {
+        self.gate_bar.is_none_or(|bar| self.gate_passed.is_some_and(|passed| passed >= bar))
+    }
+
+    /// Whether `self` ranks below `other`: an agent below its gate bar ranks below every agent
+    /// that clears its own, and the score orders agents on the same side.
+    pub fn ranks_below(&self, other: &BestRecord) -> bool {
+        (self.clears_gate_bar(), self.score) < (other.clears_gate_bar(), other.score)
+    }
 }
 
 /// What one evaluation measured of an agent: its rows in the training rooms, the gate test
@@ -65,11 +85,14 @@ pub struct Measured<'a> {
 }
 
 /// The selection score of one evaluation (see the module docs), or `None` when no room (or,
-/// with the selection, no row of it) had episodes.
-pub fn selection_score(m: Measured) -> Option<f64> {
+/// with the selection, no row of it) had episodes. With a gate bar the gate does not enter
+/// the score ([`BestRecord::ranks_below`] puts it first instead).
+pub fn selection_score(m: Measured, gate_bar: Option<usize>) -> Option<f64> {
     let rooms = mean_success(m.selection.unwrap_or(m.rows))?.0;
     Some(match m.gate {
-        Some(robots) if !robots.is_empty() => (rooms + gate_share(robots)) / 2.0,
+        Some(robots) if !robots.is_empty() && gate_bar.is_none() => {
+            (rooms + gate_share(robots)) / 2.0
+        }
         _ => rooms,
     })
 }
@@ -102,6 +125,7 @@ pub struct Moment {
 pub struct BestAgent {
     run_dir: PathBuf,
     kept: Option<BestRecord>,
+    gate_bar: Option<usize>,
 }
 
 impl BestAgent {
@@ -111,7 +135,13 @@ impl BestAgent {
         let kept = std::fs::read(run_dir.join(BEST_DIR).join(BEST_JSON))
             .ok()
             .and_then(|bytes| serde_json::from_slice(&bytes).ok());
-        Self { run_dir: run_dir.to_path_buf(), kept }
+        Self { run_dir: run_dir.to_path_buf(), kept, gate_bar: None }
+    }
+
+    /// Ranks agents by the gate bar `min_passed` (0: none, the gate is half the score).
+    pub fn with_gate_bar(mut self, min_passed: usize) -> Self {
+        self.gate_bar = (min_passed > 0).then_some(min_passed);
+        self
     }
 
     /// What is kept now.
@@ -120,8 +150,8 @@ impl BestAgent {
     }
 
     /// Scores the evaluation `m` of the agent `policy` (safetensors bytes) trained to `at` and
-    /// keeps the agent when it scores at least as high as the kept one; `config_toml` is the
-    /// run's configuration, written beside the weights. Returns the record when it was kept.
+    /// keeps the agent unless it ranks below the kept one; `config_toml` is the run's
+    /// configuration, written beside the weights. Returns the record when it was kept.
     pub fn offer(
         &mut self,
         at: Moment,
@@ -129,10 +159,7 @@ impl BestAgent {
         m: Measured,
         config_toml: &str,
     ) -> anyhow::Result<Option<&BestRecord>> {
-        let Some(score) = selection_score(m) else { return Ok(None) };
-        if self.kept.as_ref().is_some_and(|k| score < k.score) {
-            return Ok(None);
-        }
+        let Some(score) = selection_score(m, self.gate_bar) else { return Ok(None) };
         let (rooms_mean, rooms) = mean_success(m.rows).unwrap_or((f64::NAN, 0));
         let gate = m.gate;
         let record = BestRecord {
@@ -145,7 +172,11 @@ impl BestAgent {
             gate_passed: gate.map(|g| g.iter().filter(|r| r.passes_gate_test()).count()),
             gate_robots: gate.map(<[RobotResult]>::len),
             select_success: m.selection.and_then(mean_success).map(|(s, _)| s),
+            gate_bar: self.gate_bar,
         };
+        if self.kept.as_ref().is_some_and(|k| record.ranks_below(k)) {
+            return Ok(None);
+        }
         self.write(&record, policy, config_toml)?;
         Ok(Some(self.kept.insert(record)))
     }
@@ -198,15 +229,15 @@ impl BestAgent {
     }
 }
 
-/// Of several runs of one config (its seeds), the one whose `best/` scored highest on the
-/// runs' own evaluation, and its record: `(index into runs, record)`. Runs with no `best/` do
-/// not count; of equal scores the first run's stands. Only training-time evaluations decide:
+/// Of several runs of one config (its seeds), the one whose `best/` ranks highest on the runs'
+/// own evaluation ([`BestRecord::ranks_below`]), and its record: `(index into runs, record)`.
+/// Runs with no `best/` do not count; of equal ranks the first run's stands. Only training-time evaluations decide:
 /// the same evaluation, so the same score, for every seed of the config.
 pub fn best_of_runs(runs: &[PathBuf]) -> Option<(usize, BestRecord)> {
     let mut best: Option<(usize, BestRecord)> = None;
     for (i, run) in runs.iter().enumerate() {
         if let Some(record) = BestAgent::open(run).kept
-            && best.as_ref().is_none_or(|(_, b)| record.score > b.score)
+            && best.as_ref().is_none_or(|(_, b)| b.ranks_below(&record))
         {
             best = Some((i, record));
         }
@@ -217,7 +248,8 @@ pub fn best_of_runs(runs: &[PathBuf]) -> Option<(usize, BestRecord)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use dvnav_eval::Rates;
+    use dvnav_eval::{GateRoute, Rates};
+    use dvnav_sim::Outcome;
 
     fn room(success: f64, episodes: usize) -> RoomSummary {
         RoomSummary {
@@ -251,22 +283,22 @@ mod tests {
     fn the_score_is_the_rooms_mean_and_the_gate_weighs_as_much() {
         let rows = [room(1.0, 10), room(0.5, 10), room(0.0, 0)];
         assert_eq!(
-            selection_score(Measured { rows: &rows, gate: None, selection: None }),
+            selection_score(Measured { rows: &rows, gate: None, selection: None }, None),
             Some(0.75),
             "a room without episodes does not vote"
         );
         let none = Measured { rows: &[room(0.3, 0)], gate: None, selection: None };
-        assert_eq!(selection_score(none), None);
+        assert_eq!(selection_score(none, None), None);
         assert_eq!(
-            selection_score(Measured { rows: &rows, gate: Some(&[]), selection: None }),
+            selection_score(Measured { rows: &rows, gate: Some(&[]), selection: None }, None),
             Some(0.75)
         );
         // The selection's rows, when there, score instead of the rooms.
         let sel = [room(0.2, 16), room(0.4, 16)];
         let m = Measured { rows: &rows, gate: None, selection: Some(&sel) };
-        assert!((selection_score(m).unwrap() - 0.3).abs() < 1e-12);
+        assert!((selection_score(m, None).unwrap() - 0.3).abs() < 1e-12);
         let m = Measured { rows: &[], gate: None, selection: Some(&sel[..0]) };
-        assert_eq!(selection_score(m), None, "a selection without episodes does not score");
+        assert_eq!(selection_score(m, None), None, "a selection without episodes does not score");
     }
 
     #[test]
@@ -310,6 +342,66 @@ mod tests {
         let again = BestAgent::open(dir.path());
         let k = again.kept().unwrap();
         assert!(k.updates == 300 && k.rooms_success.is_nan() && k.rooms == 0, "{k:?}");
+    }
+
+    /// Twelve gate robots of which `passed` pass (the small ones through the gate on a
+    /// straight path, the others round the wall's left end).
+    fn gate(passed: usize) -> Vec<RobotResult> {
+        (0..12)
+            .map(|i| {
+                let radius = 0.2 + 0.05 * i as f64;
+                let through = radius <= 0.25 + 1e-9;
+                RobotResult {
+                    room: "gate".into(),
+                    radius,
+                    outcome: if i < passed { Outcome::Success } else { Outcome::Collision },
+                    steps: 100,
+                    time_s: 10.0,
+                    path_length_m: 3.0,
+                    score: 0.0,
+                    route: if through { GateRoute::Gate } else { GateRoute::Left },
+                    reversal_rate: 0.0,
+                    mean_abs_domega: 0.0,
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn with_a_gate_bar_the_gate_is_a_threshold_and_the_selection_ranks_above_it() {
+        // g32's three seeds: 12 of 12 with selection 0.851, 11 with 0.925, 11 with 0.913.
+        fn m<'a>(gate: &'a [RobotResult], sel: &'a [RoomSummary]) -> Measured<'a> {
+            Measured { rows: &[], gate: Some(gate), selection: Some(sel) }
+        }
+        let gates = [gate(12), gate(11), gate(10)];
+        let (g12, g11, g10) = (&gates[0][..], &gates[1][..], &gates[2][..]);
+        assert_eq!(g12.iter().filter(|r| r.passes_gate_test()).count(), 12);
+        let sels = [[room(0.851, 16)], [room(0.925, 16)], [room(0.938, 16)]];
+        let (s851, s925, s938) = (&sels[0][..], &sels[1][..], &sels[2][..]);
+        // Averaged (no bar), the 12-of-12 agent wins; with the bar at 11 the better selection.
+        let avg = |m| selection_score(m, None).unwrap();
+        assert!(avg(m(g12, s851)) > avg(m(g11, s925)));
+        assert!((selection_score(m(g12, s851), Some(11)).unwrap() - 0.851).abs() < 1e-12);
+
+        let dir = tempfile::tempdir().unwrap();
+        let mut best = BestAgent::open(dir.path()).with_gate_bar(11);
+        let offer = |best: &mut BestAgent, u, m| best.offer(at(u), b"w", m, "").unwrap().cloned();
+        // Below the bar an agent is kept until one clears it, then never replaces it.
+        assert!(offer(&mut best, 100, m(g10, s938)).is_some());
+        let kept = offer(&mut best, 200, m(g12, s851)).unwrap();
+        assert!(kept.clears_gate_bar() && kept.gate_bar == Some(11));
+        assert!(offer(&mut best, 300, m(g10, s938)).is_none(), "10 of 12 is below the bar");
+        assert_eq!(offer(&mut best, 400, m(g11, s925)).map(|k| k.updates), Some(400));
+        assert!(offer(&mut best, 500, m(g12, s851)).is_none(), "the selection ranks above 11");
+        assert_eq!(BestAgent::open(dir.path()).kept().unwrap().gate_bar, Some(11));
+
+        // Across seeds: each record carries its bar.
+        let runs: Vec<PathBuf> = (1..=3).map(|s| dir.path().join(format!("seed-{s}"))).collect();
+        for (run, (g, s)) in runs.iter().zip([(g12, s851), (g11, s925), (g10, s938)]) {
+            std::fs::create_dir_all(run).unwrap();
+            offer(&mut BestAgent::open(run).with_gate_bar(11), 100, m(g, s)).unwrap();
+        }
+        assert_eq!(best_of_runs(&runs).map(|(i, _)| i), Some(1));
     }
 
     #[test]

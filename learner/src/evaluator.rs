@@ -113,7 +113,8 @@ impl Evaluator {
                 }
             };
             let mut logger = None;
-            let mut best = BestAgent::open(&out);
+            let gate_bar = cfg.learner.selection.as_ref().map_or(0, |s| s.gate_min_passed);
+            let mut best = BestAgent::open(&out).with_gate_bar(gate_bar);
             let config_toml = cfg.to_toml_string();
             for snap in rx {
                 if logger.is_none() {
@@ -689,7 +690,9 @@ mod tests {
             room_count: 2,
             radii: vec![0.2, 0.4],
             episodes: 2,
+            gate_min_passed: 12,
         });
+        cfg.learner.eval_gate = true;
         let dir = tempfile::tempdir().unwrap();
         let ev = Evaluator::start(&cfg, dir.path()).unwrap().unwrap();
         assert!(ev.submit(snapshot(10, 40, 3, fresh_policy(&cfg))));
@@ -700,8 +703,9 @@ mod tests {
         assert_eq!(lines.len(), 1 + 2 * 2, "two rooms, two robots: {text}");
         let best = crate::best_agent::BestAgent::open(dir.path());
         let kept = best.kept().expect("the first evaluation is kept");
-        assert_eq!(kept.updates, 10);
-        assert_eq!(kept.select_success, Some(kept.score), "no gate: the selection is the score");
+        assert_eq!((kept.updates, kept.gate_bar, kept.gate_robots), (10, Some(12), Some(12)));
+        // With the gate as a bar, the selection alone is the score.
+        assert_eq!(kept.select_success, Some(kept.score));
     }
 
     #[test]

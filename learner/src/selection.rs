@@ -163,6 +163,7 @@ mod tests {
             room_count: 3,
             radii: vec![0.2, 0.5],
             episodes: 2,
+            ..SelectionConfig::default()
         };
         cfg.learner.selection = Some(sel.clone());
         (cfg, sel)

@@ -340,18 +340,38 @@ pub struct SelectionConfig {
     pub radii: Vec<f64>,
     /// Episodes per room and robot, the same seeded starts and goals at every evaluation.
     pub episodes: usize,
+    /// With `learner.eval_gate`: the gate test as a bar instead of half the score. An agent
+    /// whose gate test passes at least this many of its twelve robots ranks above every agent
+    /// that passes fewer, and among those the selection's rows alone decide. 0 (the default):
+    /// the score is the mean of the rows' success and the gate's share, as g28-g32 ran, which
+    /// let a 12-of-12 agent with weaker local skill win over an 11-of-12 one (g32).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub gate_min_passed: usize,
 }
 
 impl Default for SelectionConfig {
     fn default() -> Self {
-        Self { rooms: String::new(), room_count: 12, radii: vec![0.2, 0.4, 0.6], episodes: 16 }
+        Self {
+            rooms: String::new(),
+            room_count: 12,
+            radii: vec![0.2, 0.4, 0.6],
+            episodes: 16,
+            gate_min_passed: 0,
+        }
     }
 }
+
+/// The robots of the paper's gate test (`dvnav_eval::GATE_RADII`, R = 0.20-0.75 m by 0.05).
+pub const GATE_ROBOTS: usize = 12;
 
 // Keys added after their section was first released stay out of a config's TOML (and its hash)
 // while off, so older runs keep their config hashes.
 fn is_false(b: &bool) -> bool {
     !*b
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
 }
 
 /// The arithmetic of the learner's matrix products (`learner.precision`).
@@ -903,6 +923,21 @@ impl Config {
                 format!("must be one or more positive radii (m), got {:?}", sel.radii),
             ));
         }
+        if sel.gate_min_passed > 0 && !self.learner.eval_gate {
+            return Err(bad(
+                &format!("{key}.gate_min_passed"),
+                "is a bar on the gate test: set learner.eval_gate = true, or remove it",
+            ));
+        }
+        if sel.gate_min_passed > GATE_ROBOTS {
+            return Err(bad(
+                &format!("{key}.gate_min_passed"),
+                format!(
+                    "must be at most {GATE_ROBOTS}, the gate test's robots, got {}",
+                    sel.gate_min_passed
+                ),
+            ));
+        }
         let e = &self.env;
         if e.footprint.is_some() || e.radius_input || e.radius_range.is_some() {
             return Err(bad(
@@ -1325,6 +1360,18 @@ mod tests {
         refused(&format!("{sel}episodes = 0\n"), "learner.selection.episodes", "at least 1");
         refused(&format!("{sel}room_count = 0\n"), "learner.selection.room_count", "at least 1");
         refused(&format!("[env]\nradius_input = true\n{sel}"), "learner.selection.radii", "DVST");
+        // The gate bar: off by default (not in the TOML), needs the gate test, at most 12.
+        assert!(!cfg.to_toml_string().contains("gate_min_passed"));
+        let bar = |n: usize| format!("[learner]\neval_gate = true\n{sel}gate_min_passed = {n}\n");
+        let cfg = Config::from_toml_str(&bar(11)).unwrap();
+        assert_eq!(cfg.learner.selection.as_ref().unwrap().gate_min_passed, 11);
+        assert_eq!(Config::from_toml_str(&cfg.to_toml_string()).unwrap(), cfg);
+        refused(&bar(13), "learner.selection.gate_min_passed", "at most 12");
+        refused(
+            &format!("{sel}gate_min_passed = 11\n"),
+            "learner.selection.gate_min_passed",
+            "eval_gate = true",
+        );
     }
 
     /// The experiment log's configs (docs/results.md) stay runnable as the keys evolve.

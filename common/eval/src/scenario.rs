@@ -441,7 +441,11 @@ mod tests {
                 mean_abs_domega: 0.0,
             };
         let radii = parse_radii(GATE_RADII).unwrap();
-        assert_eq!(radii.len(), 12);
+        assert_eq!(
+            radii.len(),
+            dvnav_config::GATE_ROBOTS,
+            "the gate bar (learner.selection) counts them"
+        );
         assert!(robot(0.25, Outcome::Success, GateRoute::Gate, 3.0).passes_gate_test());
         assert!(!robot(0.25, Outcome::Success, GateRoute::Gate, 3.5).passes_gate_test());
         assert!(!robot(0.25, Outcome::Success, GateRoute::Left, 6.0).passes_gate_test());
