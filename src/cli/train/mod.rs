@@ -55,8 +55,9 @@ pub struct TrainArgs {
     /// Train the same config with this many seeds, one after the other (seed, seed+1, …), each
     /// in OUT/seed-<seed>/, then print a table and write OUT/seeds_summary.json (stage reached,
     /// when the last room reached the threshold, wall time). The seeds' best agents (each
-    /// run's `best/`, kept by its training-time evaluation) are compared by that evaluation's
-    /// score and the highest becomes OUT/best (`best` in the summary). `dvnav plot curves
+    /// run's `best/`, kept by its training-time evaluation) are ranked as within a run (the
+    /// gate bar first when `learner.selection.gate_min_passed` sets one, then the score) and
+    /// the highest becomes OUT/best (`best` in the summary). `dvnav plot curves
     /// OUT/seed-*` draws them together.
     #[arg(long, value_name = "N", conflicts_with = "resume")]
     pub seeds: Option<usize>,
