@@ -231,8 +231,9 @@ impl BestAgent {
 
 /// Of several runs of one config (its seeds), the one whose `best/` ranks highest on the runs'
 /// own evaluation ([`BestRecord::ranks_below`]), and its record: `(index into runs, record)`.
-/// Runs with no `best/` do not count; of equal ranks the first run's stands. Only training-time evaluations decide:
-/// the same evaluation, so the same score, for every seed of the config.
+/// Runs with no `best/` do not count; of equal ranks the first run's stands. Only
+/// training-time evaluations decide: the same evaluation, so the same score, for every seed of
+/// the config.
 pub fn best_of_runs(runs: &[PathBuf]) -> Option<(usize, BestRecord)> {
     let mut best: Option<(usize, BestRecord)> = None;
     for (i, run) in runs.iter().enumerate() {
