@@ -60,11 +60,11 @@ pub fn round_to_bf16(x: f32) -> f32 {
 /// A read-only view of a 2-D f32 matrix with any strides (a transposed view included).
 #[derive(Clone, Copy, Debug)]
 pub struct MatRef<'a> {
-    data: &'a [f32],
-    rows: usize,
-    cols: usize,
-    row_stride: usize,
-    col_stride: usize,
+    pub(crate) data: &'a [f32],
+    pub(crate) rows: usize,
+    pub(crate) cols: usize,
+    pub(crate) row_stride: usize,
+    pub(crate) col_stride: usize,
 }
 
 impl<'a> MatRef<'a> {
@@ -72,6 +72,36 @@ impl<'a> MatRef<'a> {
     pub fn row_major(data: &'a [f32], rows: usize, cols: usize) -> Self {
         assert!(data.len() >= rows * cols, "{} values for a {rows}x{cols} matrix", data.len());
         Self { data, rows, cols, row_stride: cols, col_stride: 1 }
+    }
+
+    /// A `rows × cols` matrix whose element `(i, j)` is `data[i·row_stride + j·col_stride]`;
+    /// rows may overlap (a convolution's input read in place, [`crate::conv`]).
+    ///
+    /// # Panics
+    /// If the last element lies past `data`.
+    pub fn strided(
+        data: &'a [f32],
+        rows: usize,
+        cols: usize,
+        row_stride: usize,
+        col_stride: usize,
+    ) -> Self {
+        if rows > 0 && cols > 0 {
+            let last = (rows - 1) * row_stride + (cols - 1) * col_stride;
+            assert!(last < data.len(), "a {rows}x{cols} view reaches {last} of {}", data.len());
+        }
+        Self { data, rows, cols, row_stride, col_stride }
+    }
+
+    /// The transposed view.
+    pub fn t(self) -> Self {
+        Self {
+            data: self.data,
+            rows: self.cols,
+            cols: self.rows,
+            row_stride: self.col_stride,
+            col_stride: self.row_stride,
+        }
     }
 
     /// The element at row `i`, column `j`.

@@ -72,7 +72,8 @@ pub fn unfold_index(len: usize, kernel: usize, stride: usize, dev: &Device) -> R
     Tensor::from_vec(idx, out_len * kernel, dev)
 }
 
-fn f32_slice<'a>(s: &'a CpuStorage, l: &Layout, what: &str) -> Result<&'a [f32]> {
+/// The f32 values of a contiguous CPU tensor; `what` names the op in errors.
+pub(crate) fn f32_slice<'a>(s: &'a CpuStorage, l: &Layout, what: &str) -> Result<&'a [f32]> {
     let CpuStorage::F32(data) = s else {
         candle_core::bail!("{what}: f32 tensors only");
     };

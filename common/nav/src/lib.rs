@@ -26,6 +26,7 @@
 
 pub mod bf16;
 pub mod control;
+pub mod conv;
 pub mod dvst;
 pub mod fused;
 pub mod nets;

@@ -8,10 +8,12 @@
 //! observation's [`ObsLayout`] sizes the first fully-connected layer.
 //!
 //! Design decisions:
-//! - **Convolutions as unfold + matmul, channels last.** candle's CPU `conv1d` and its backward
+//! - **Convolutions as matmuls, channels last.** candle's CPU `conv1d` and its backward
 //!   pass (a transposed convolution) dominate an update on a CPU. Written as an im2col
 //!   unfold followed by one matmul, both directions are matmuls and a copy/accumulate
-//!   ([`crate::fused`]). Activations stay `(batch, length, channels)` so the unfold needs no transpose.
+//!   ([`crate::fused`]); on the CPU, where the input length is a multiple of the stride (both
+//!   layers of the default network), the matmul reads the windows in place with no unfold
+//!   ([`crate::conv`]). Activations stay `(batch, length, channels)` so no transpose is needed.
 //!   Weights keep PyTorch's `(out, in, kernel)` layout in safetensors; only the flatten order
 //!   before the first linear layer (length-major) differs from a channels-first network.
 //! - **Fused epilogues.** Bias + activation is one pass forward and one backward
@@ -26,6 +28,7 @@
 //!   log(1 − tanh²u) = 2·(ln 2 − u − softplus(−2u)).
 
 use crate::bf16::{Precision, matmul};
+use crate::conv::InPlace;
 use candle_core::{D, DType, Device, Module, Result, Tensor};
 use candle_nn::{Linear, VarBuilder, VarMap};
 use dvnav_config::NetConfig;
@@ -57,6 +60,9 @@ pub struct Conv1dUnfold {
     precision: Precision,
     /// The unfold's gather positions off the CPU ([`crate::fused::unfold_index`]).
     index: Option<Tensor>,
+    /// On the CPU, the input read in place without the unfold ([`crate::conv`]), where its
+    /// length is a multiple of the stride.
+    in_place: Option<InPlace>,
 }
 
 impl Conv1dUnfold {
@@ -82,6 +88,7 @@ impl Conv1dUnfold {
         let index = (!vb.device().is_cpu())
             .then(|| crate::fused::unfold_index(in_len, kernel, stride, vb.device()))
             .transpose()?;
+        let in_place = InPlace::new(in_len, in_channels, kernel, stride, out_channels);
         Ok(Self {
             weight,
             bias,
@@ -92,6 +99,7 @@ impl Conv1dUnfold {
             out_len,
             precision,
             index,
+            in_place,
         })
     }
 
@@ -106,15 +114,23 @@ impl Conv1dUnfold {
     /// `(batch·out_len, out_channels)`.
     fn products(&self, x: &Tensor) -> Result<Tensor> {
         let b = x.dim(0)?;
-        let cols = crate::fused::unfold_at(x, self.kernel, self.stride, self.index.as_ref())?
-            .reshape((b * self.out_len, self.kernel * self.in_channels))?;
-        // (out, in, k) → (k, in, out) → (k·in, out): rows in the unfold's (position, channel) order.
+        // (out, in, k) → (k, in, out) → (k·in, out): rows in a window's (position, channel) order.
         let w = self
             .weight
             .permute((2, 1, 0))?
             .contiguous()?
             .reshape((self.kernel * self.in_channels, self.out_channels))?;
-        matmul(&cols, &w, self.precision)
+        match self.in_place {
+            Some(g) if x.device().is_cpu() && x.dtype() == DType::F32 => {
+                crate::conv::products(x, &w, g, self.precision)
+            }
+            _ => {
+                let cols =
+                    crate::fused::unfold_at(x, self.kernel, self.stride, self.index.as_ref())?
+                        .reshape((b * self.out_len, self.kernel * self.in_channels))?;
+                matmul(&cols, &w, self.precision)
+            }
+        }
     }
 
     /// The convolution followed by a leaky ReLU of `slope`, fused with the bias.
@@ -462,13 +478,21 @@ mod tests {
         Tensor::from_vec(v, (batch, 544), &Device::Cpu).unwrap()
     }
 
+    /// Through the unfold (23 positions, stride 2) and read in place (24 positions).
     #[test]
     fn unfold_conv_matches_candle_conv1d() {
+        for len in [23, 24] {
+            conv_matches_candle_conv1d(len);
+        }
+    }
+
+    fn conv_matches_candle_conv1d(len: usize) {
         let vm = VarMap::new();
         let vb = VarBuilder::from_varmap(&vm, DType::F32, &Device::Cpu);
-        let conv = Conv1dUnfold::new(vb, 3, 4, 5, 2, 23).unwrap();
+        let conv = Conv1dUnfold::new(vb, 3, 4, 5, 2, len).unwrap();
+        assert_eq!(conv.in_place.is_some(), len.is_multiple_of(2));
         init_seeded(&vm, 7).unwrap();
-        let x = Tensor::randn(0f32, 1., (2, 23, 3), &Device::Cpu).unwrap();
+        let x = Tensor::randn(0f32, 1., (2, len, 3), &Device::Cpu).unwrap();
         let ours = conv.forward(&x).unwrap();
         // candle's conv1d takes channels-first input and returns channels-first output.
         let theirs = x
