@@ -47,9 +47,10 @@ pub fn softplus(x: &Tensor) -> Result<Tensor> {
     pos + tail
 }
 
-/// A 1-D convolution on channels-last input, computed as unfold + matmul.
+/// A 1-D convolution on channels-last input as one matrix product: the input's windows read in
+/// place on the CPU ([`crate::conv`]), an im2col unfold elsewhere ([`crate::fused::unfold`]).
 #[derive(Clone, Debug)]
-pub struct Conv1dUnfold {
+pub struct Conv1dChannelsLast {
     weight: Tensor,
     bias: Tensor,
     in_channels: usize,
@@ -65,7 +66,7 @@ pub struct Conv1dUnfold {
     in_place: Option<InPlace>,
 }
 
-impl Conv1dUnfold {
+impl Conv1dChannelsLast {
     /// A convolution over inputs of `in_len` positions; weights `weight` (out, in, kernel) and
     /// `bias` (out) live under `vb`.
     pub fn new(
@@ -109,7 +110,7 @@ impl Conv1dUnfold {
     }
 }
 
-impl Conv1dUnfold {
+impl Conv1dChannelsLast {
     /// `(batch, in_len, in_channels)` → the products with the kernel, before the bias,
     /// `(batch·out_len, out_channels)`.
     fn products(&self, x: &Tensor) -> Result<Tensor> {
@@ -144,7 +145,7 @@ impl Conv1dUnfold {
     }
 }
 
-impl Module for Conv1dUnfold {
+impl Module for Conv1dChannelsLast {
     /// `(batch, in_len, in_channels)` → `(batch, out_len, out_channels)`.
     fn forward(&self, x: &Tensor) -> Result<Tensor> {
         let b = x.dim(0)?;
@@ -176,8 +177,8 @@ pub fn dense(layer: &Linear, x: &Tensor, precision: Precision) -> Result<Tensor>
 #[derive(Clone, Debug)]
 pub struct ScanEncoder {
     offset: Tensor,
-    conv1: Conv1dUnfold,
-    conv2: Conv1dUnfold,
+    conv1: Conv1dChannelsLast,
+    conv2: Conv1dChannelsLast,
     fc: Linear,
     beams: usize,
     precision: Precision,
@@ -187,7 +188,7 @@ impl ScanEncoder {
     /// Builds the encoder for scans of `beams` ranges.
     pub fn new(vb: VarBuilder, cfg: &NetConfig, beams: usize) -> Result<Self> {
         let offset = vb.get_with_hints(1, "reciprocal_offset", candle_nn::Init::Const(0.0))?;
-        let conv1 = Conv1dUnfold::new(
+        let conv1 = Conv1dChannelsLast::new(
             vb.pp("conv1"),
             1,
             cfg.conv1_channels,
@@ -195,7 +196,7 @@ impl ScanEncoder {
             cfg.conv1_stride,
             beams,
         )?;
-        let conv2 = Conv1dUnfold::new(
+        let conv2 = Conv1dChannelsLast::new(
             vb.pp("conv2"),
             cfg.conv1_channels,
             cfg.conv2_channels,
@@ -480,7 +481,7 @@ mod tests {
 
     /// Through the unfold (23 positions, stride 2) and read in place (24 positions).
     #[test]
-    fn unfold_conv_matches_candle_conv1d() {
+    fn channels_last_conv_matches_candle_conv1d() {
         for len in [23, 24] {
             conv_matches_candle_conv1d(len);
         }
@@ -489,7 +490,7 @@ mod tests {
     fn conv_matches_candle_conv1d(len: usize) {
         let vm = VarMap::new();
         let vb = VarBuilder::from_varmap(&vm, DType::F32, &Device::Cpu);
-        let conv = Conv1dUnfold::new(vb, 3, 4, 5, 2, len).unwrap();
+        let conv = Conv1dChannelsLast::new(vb, 3, 4, 5, 2, len).unwrap();
         assert_eq!(conv.in_place.is_some(), len.is_multiple_of(2));
         init_seeded(&vm, 7).unwrap();
         let x = Tensor::randn(0f32, 1., (2, len, 3), &Device::Cpu).unwrap();
