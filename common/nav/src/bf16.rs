@@ -247,6 +247,56 @@ fn rounded_f32(a: MatRef, b: MatRef) -> Vec<f32> {
     out
 }
 
+/// `a · b`, row-major, in the given precision.
+pub(crate) fn product(a: MatRef, b: MatRef, precision: Precision) -> Vec<f32> {
+    match precision {
+        Precision::Bf16 => Kernel::detect().gemm(a, b),
+        Precision::Fp32 | Precision::Auto => {
+            let mut out = vec![0f32; a.rows * b.cols];
+            gemm_f32(&mut out, b.cols, a, b);
+            out
+        }
+    }
+}
+
+/// `dst += a · b` in fp32, `dst` row `i` starting at `i·dst_row_stride`.
+///
+/// # Panics
+/// If the inner dimensions differ or `dst` is too short.
+pub(crate) fn gemm_f32(dst: &mut [f32], dst_row_stride: usize, a: MatRef, b: MatRef) {
+    assert_eq!(a.cols, b.rows, "gemm: ({}, {}) x ({}, {})", a.rows, a.cols, b.rows, b.cols);
+    let (m, n, k) = (a.rows, b.cols, a.cols);
+    if m == 0 || n == 0 || k == 0 {
+        return;
+    }
+    assert!((m - 1) * dst_row_stride + n <= dst.len(), "gemm: destination too short");
+    // SAFETY: every element gemm reads lies in `a.data` and `b.data` (MatRef's constructors
+    // check the last one) and every element it writes in `dst` (checked above).
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            dst.as_mut_ptr(),
+            1,
+            dst_row_stride as isize,
+            true,
+            a.data.as_ptr(),
+            a.col_stride as isize,
+            a.row_stride as isize,
+            b.data.as_ptr(),
+            b.col_stride as isize,
+            b.row_stride as isize,
+            1.0,
+            1.0,
+            false,
+            false,
+            false,
+            gemm::Parallelism::None,
+        );
+    }
+}
+
 /// The blocked product behind the `vdpbf16ps` kernel, kept apart from the instruction so that
 /// its packing and blocking run (with [`blocked::scalar_tile`]) on every machine's tests.
 ///

@@ -21,7 +21,7 @@
 //!   (a strided destination; `ceil(kernel/stride)` products and no col2im matrix); in bf16 the
 //!   product as one matrix through the bf16 kernel, then the col2im.
 
-use crate::bf16::{Kernel, MatRef, Precision};
+use crate::bf16::{Kernel, MatRef, Precision, gemm_f32, product};
 use crate::fused::f32_slice;
 use candle_core::{CpuStorage, CustomOp2, DType, Layout, Result, Shape, Tensor};
 
@@ -144,56 +144,6 @@ pub fn products(x: &Tensor, w: &Tensor, geometry: InPlace, precision: Precision)
         candle_core::bail!("conv in place: f32 tensors on the CPU only");
     }
     x.contiguous()?.apply_op2(&w.contiguous()?, Forward { g: geometry, precision })
-}
-
-/// `a · b`, row-major, in the given precision.
-fn product(a: MatRef, b: MatRef, precision: Precision) -> Vec<f32> {
-    match precision {
-        Precision::Bf16 => Kernel::detect().gemm(a, b),
-        Precision::Fp32 | Precision::Auto => {
-            let mut out = vec![0f32; a.rows * b.cols];
-            gemm_f32(&mut out, b.cols, a, b);
-            out
-        }
-    }
-}
-
-/// `dst += a · b` in fp32, `dst` row `i` starting at `i·dst_row_stride`.
-///
-/// # Panics
-/// If the inner dimensions differ or `dst` is too short.
-fn gemm_f32(dst: &mut [f32], dst_row_stride: usize, a: MatRef, b: MatRef) {
-    assert_eq!(a.cols, b.rows, "gemm: ({}, {}) x ({}, {})", a.rows, a.cols, b.rows, b.cols);
-    let (m, n, k) = (a.rows, b.cols, a.cols);
-    if m == 0 || n == 0 || k == 0 {
-        return;
-    }
-    assert!((m - 1) * dst_row_stride + n <= dst.len(), "gemm: destination too short");
-    // SAFETY: every element gemm reads lies in `a.data` and `b.data` (MatRef's constructors
-    // check the last one) and every element it writes in `dst` (checked above).
-    unsafe {
-        gemm::gemm(
-            m,
-            n,
-            k,
-            dst.as_mut_ptr(),
-            1,
-            dst_row_stride as isize,
-            true,
-            a.data.as_ptr(),
-            a.col_stride as isize,
-            a.row_stride as isize,
-            b.data.as_ptr(),
-            b.col_stride as isize,
-            b.row_stride as isize,
-            1.0,
-            1.0,
-            false,
-            false,
-            false,
-            gemm::Parallelism::None,
-        );
-    }
 }
 
 /// The forward products.

@@ -27,6 +27,7 @@
 pub mod bf16;
 pub mod control;
 pub mod conv;
+pub mod dense;
 pub mod dvst;
 pub mod fused;
 pub mod nets;

@@ -29,6 +29,7 @@
 
 use crate::bf16::{Precision, matmul};
 use crate::conv::InPlace;
+use crate::dense::x_wt;
 use candle_core::{D, DType, Device, Module, Result, Tensor};
 use candle_nn::{Linear, VarBuilder, VarMap};
 use dvnav_config::NetConfig;
@@ -155,7 +156,7 @@ impl Module for Conv1dChannelsLast {
 
 /// `act(x·Wᵀ + b)` for a 2-D `x` and a candle `Linear`, bias and activation fused.
 fn linear_act(layer: &Linear, x: &Tensor, slope: f32, precision: Precision) -> Result<Tensor> {
-    let h = matmul(x, &layer.weight().t()?, precision)?;
+    let h = x_wt(x, layer.weight(), precision)?;
     match layer.bias() {
         Some(b) => crate::fused::bias_act(&h, b, slope),
         None => candle_core::bail!("linear layer without a bias"),
@@ -165,7 +166,7 @@ fn linear_act(layer: &Linear, x: &Tensor, slope: f32, precision: Precision) -> R
 /// `x·Wᵀ + b` for a 2-D `x` and a candle `Linear`, the product in `precision` (an output head:
 /// no activation).
 pub fn dense(layer: &Linear, x: &Tensor, precision: Precision) -> Result<Tensor> {
-    let h = matmul(x, &layer.weight().t()?, precision)?;
+    let h = x_wt(x, layer.weight(), precision)?;
     match layer.bias() {
         Some(b) => h.broadcast_add(b),
         None => Ok(h),
