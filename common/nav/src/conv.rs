@@ -23,7 +23,7 @@
 
 use crate::bf16::{Kernel, MatRef, Precision, gemm_f32, product};
 use crate::fused::f32_slice;
-use candle_core::{CpuStorage, CustomOp2, DType, Layout, Result, Shape, Tensor};
+use candle_core::{CpuStorage, CustomOp1, CustomOp2, DType, Layout, Result, Shape, Tensor};
 
 /// The ops' name in errors.
 const NAME: &str = "conv in place";
@@ -123,6 +123,18 @@ impl InPlace {
         }
     }
 
+    /// Checks a spread output gradient of `dims` for `batch` samples.
+    fn check_spread(&self, dims: &[usize], batch: usize) -> Result<()> {
+        if dims != [self.view_rows(batch), self.out_channels] {
+            candle_core::bail!(
+                "conv in place: spread gradient {dims:?}, expected ({}, {}) for {batch} samples",
+                self.view_rows(batch),
+                self.out_channels
+            );
+        }
+        Ok(())
+    }
+
     /// Checks a weight of `dims`.
     fn check_weight(&self, dims: &[usize]) -> Result<()> {
         if dims != [self.width(), self.out_channels] {
@@ -186,14 +198,32 @@ impl CustomOp2 for Forward {
         _res: &Tensor,
         grad: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>)> {
-        let grad = grad.contiguous()?;
-        let dw = x.apply_op2_no_bwd(&grad, &WeightGrad(*self))?;
-        let dx = grad.apply_op2_no_bwd(w, &InputGrad(*self))?;
+        // The output gradient on the view's rows, once for both gradients.
+        let dz = grad.contiguous()?.apply_op1_no_bwd(&Spread(self.g))?;
+        let dw = x.apply_op2_no_bwd(&dz, &WeightGrad(*self))?;
+        let dx = dz.apply_op2_no_bwd(w, &InputGrad { f: *self, batch: x.dim(0)? })?;
         Ok((Some(dx), Some(dw)))
     }
 }
 
-/// The weight's gradient from the input and the output gradient.
+/// The output gradient `(batch·out_len, out)` spread over the view's rows, `(view rows, out)`
+/// with zeros at the dropped rows.
+struct Spread(InPlace);
+
+impl CustomOp1 for Spread {
+    fn name(&self) -> &'static str {
+        "conv-in-place-spread"
+    }
+
+    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> Result<(CpuStorage, Shape)> {
+        let g = self.0;
+        let batch = g.batch_of_output(l.dims())?;
+        let dz = g.spread(f32_slice(s, l, NAME)?, batch);
+        Ok((CpuStorage::F32(dz), Shape::from((g.view_rows(batch), g.out_channels))))
+    }
+}
+
+/// The weight's gradient from the input and the spread output gradient.
 struct WeightGrad(Forward);
 
 impl CustomOp2 for WeightGrad {
@@ -210,20 +240,21 @@ impl CustomOp2 for WeightGrad {
     ) -> Result<(CpuStorage, Shape)> {
         let g = self.0.g;
         let batch = g.batch_of_input(l1.dims())?;
-        if g.batch_of_output(l2.dims())? != batch {
-            candle_core::bail!("conv in place: input {:?}, gradient {:?}", l1.dims(), l2.dims());
-        }
-        let (x, dy) = (f32_slice(s1, l1, NAME)?, f32_slice(s2, l2, NAME)?);
+        g.check_spread(l2.dims(), batch)?;
+        let (x, dz) = (f32_slice(s1, l1, NAME)?, f32_slice(s2, l2, NAME)?);
         let o = g.out_channels;
-        let dz = g.spread(dy, batch);
-        let dz = MatRef::row_major(&dz, g.view_rows(batch), o);
+        let dz = MatRef::row_major(dz, g.view_rows(batch), o);
         let dw = product(g.view(x, batch).t(), dz, self.0.precision);
         Ok((CpuStorage::F32(dw), Shape::from((g.width(), o))))
     }
 }
 
-/// The input's gradient from the output gradient and the weight.
-struct InputGrad(Forward);
+/// The input's gradient from the spread output gradient and the weight.
+struct InputGrad {
+    f: Forward,
+    /// Samples (the view's row count does not give it back when it is 0).
+    batch: usize,
+}
 
 impl CustomOp2 for InputGrad {
     fn name(&self) -> &'static str {
@@ -237,15 +268,14 @@ impl CustomOp2 for InputGrad {
         s2: &CpuStorage,
         l2: &Layout,
     ) -> Result<(CpuStorage, Shape)> {
-        let g = self.0.g;
-        let batch = g.batch_of_output(l1.dims())?;
+        let (g, batch) = (self.f.g, self.batch);
+        g.check_spread(l1.dims(), batch)?;
         g.check_weight(l2.dims())?;
-        let (dy, w) = (f32_slice(s1, l1, NAME)?, f32_slice(s2, l2, NAME)?);
+        let (dz, w) = (f32_slice(s1, l1, NAME)?, f32_slice(s2, l2, NAME)?);
         let (o, c, step, rows) = (g.out_channels, g.channels, g.step(), g.view_rows(batch));
-        let dz = g.spread(dy, batch);
-        let dz = MatRef::row_major(&dz, rows, o);
+        let dz = MatRef::row_major(dz, rows, o);
         let mut dx = vec![0f32; batch * g.len * c];
-        match self.0.precision {
+        match self.f.precision {
             Precision::Fp32 | Precision::Auto => {
                 // Taps q·stride .. (q+1)·stride of every window are the input rows one window
                 // step further for each q: gemm adds dZ · W_qᵀ into dx's rows from q steps on.
