@@ -1,8 +1,9 @@
 //! [`NavEnv`]: one navigation episode at a time for a robot of any footprint (design §2).
 
-use super::grid::Reach;
+use super::grid::{GeodesicField, Reach};
 use super::room::Body;
 use super::sensor::MountedSensor;
+use super::spec::Point;
 use super::{Footprint, Lidar, Pose2, Room, dist, wrap_angle};
 use crate::EnvConfig;
 use crate::Outcome;
@@ -111,6 +112,10 @@ pub struct NavEnv {
     history: VecDeque<Vec<f32>>,
     /// `EnvConfig::subgoals`: this episode's planned path and subgoal rule.
     route: Option<RouteState>,
+    /// `env.reward.geodesic_progress`, when the agent observes its final goal: the way to the
+    /// goal for the robot's size from anywhere in the room, and that way's length (m) from the
+    /// current pose, the reward's d_t.
+    geodesic: Option<(GeodesicField, f64)>,
 }
 
 impl NavEnv {
@@ -202,6 +207,7 @@ impl NavEnv {
             perturb: Perturbation::default(),
             history: VecDeque::new(),
             route: None,
+            geodesic: None,
         }
     }
 
@@ -439,6 +445,7 @@ impl NavEnv {
                 c.follow && (c.follow_share >= 1.0 || robust_rng.random::<f64>() < c.follow_share);
             RouteState::begin(c, follow, &self.room, self.radius, scale, start, goal)
         });
+        self.geodesic = self.geodesic_field(start.position(), goal);
         self.step_limit = self.cfg.max_steps;
         if let (Some(c), Some(len)) =
             (&self.cfg.subgoals, self.route.as_ref().and_then(|r| r.stats().planned_length_m))
@@ -598,9 +605,9 @@ impl NavEnv {
                 let left = route.step(&self.room, pose, self.cfg.dt, || {
                     crate::lidar::scan_points(pose, scan, angles, max)
                 });
-                if route.follow() { left } else { self.goal_distance }
+                if route.follow() { left } else { self.straight_or_geodesic() }
             }
-            None => self.goal_distance,
+            None => self.straight_or_geodesic(),
         };
         let rw = &self.cfg.reward;
         let (reward, done) = if collided {
@@ -714,12 +721,49 @@ impl NavEnv {
         self.route.as_ref().filter(|r| r.path().is_some()).map(RouteState::subgoal)
     }
 
-    /// The reward's d_t: the path left along the plan when following one, else the straight
-    /// distance to the goal.
+    /// The reward's d_t: the path left along the plan when following one, else the shortest
+    /// way's length with `env.reward.geodesic_progress`, else the straight distance to the goal.
     fn progress_distance(&self) -> f64 {
-        match &self.route {
-            Some(r) if r.follow() => r.remaining_m(),
+        match (&self.route, &self.geodesic) {
+            (Some(r), _) if r.follow() => r.remaining_m(),
+            (_, Some((_, d))) => *d,
             _ => self.goal_distance,
+        }
+    }
+
+    /// With `env.reward.geodesic_progress`, when the agent observes its final goal: the field
+    /// of ways to `goal` for the robot's size, on the planner's raster, and its value at
+    /// `start`. `None` otherwise, and when the field has no value there (the reward then
+    /// measures the straight line, as the paper's does).
+    fn geodesic_field(&self, start: Point, goal: Point) -> Option<(GeodesicField, f64)> {
+        let follows = self.route.as_ref().is_some_and(RouteState::follow);
+        if !self.cfg.reward.geodesic_progress || follows {
+            return None;
+        }
+        let map = self.room.planning_map();
+        // No slack: `Reach::entries` still joins the goal through the cells within 1.5 of its
+        // own, which a goal drawn with the robot's clearance always has.
+        let field = map.reach(self.radius).field_to(goal, 0.0)?;
+        let d = field.distance(start)?;
+        Some((field, d))
+    }
+
+    /// The reward's d_{t+1} when the agent observes its final goal: the geodesic way's length
+    /// with `env.reward.geodesic_progress` (the straight line where the field has no value
+    /// near the robot), else the straight line; keeps it as the next step's d_t.
+    fn straight_or_geodesic(&mut self) -> f64 {
+        let pose = self.pose.position();
+        match &mut self.geodesic {
+            Some((field, d)) => {
+                // Off the field (a robot pressed into a corner the raster calls too tight for
+                // it, farther than the search looks) counts no progress rather than jumping
+                // to the straight line.
+                if let Some(now) = field.distance(pose) {
+                    *d = now;
+                }
+                *d
+            }
+            None => self.goal_distance,
         }
     }
 

@@ -90,6 +90,10 @@ fn is_zero(x: &f64) -> bool {
     *x == 0.0
 }
 
+fn is_false(b: &bool) -> bool {
+    !*b
+}
+
 fn is_true(b: &bool) -> bool {
     *b
 }
@@ -201,6 +205,14 @@ pub struct RewardConfig {
     /// motors suffer (`dvnav eval`'s `reversal_rate`); the first step after a reset is free.
     #[serde(skip_serializing_if = "is_zero")]
     pub omega_change: f64,
+    /// d_t is the length of the robot's shortest way to the goal (through the cells a disc of
+    /// its radius can be at, on the planner's raster) instead of the straight line, when the
+    /// agent observes its final goal (a followed route's d_t is already its path left). Not in
+    /// the paper: the reward Habitat's PointNav pays, so that going round a wall is progress
+    /// and pressing against it is not. Training only: evaluations ([`EnvConfig::clean`]) keep
+    /// the straight line.
+    #[serde(skip_serializing_if = "is_false")]
+    pub geodesic_progress: bool,
 }
 
 impl Default for RewardConfig {
@@ -211,6 +223,7 @@ impl Default for RewardConfig {
             progress: 2.0,
             time_penalty: 0.01,
             omega_change: 0.0,
+            geodesic_progress: false,
         }
     }
 }
@@ -222,14 +235,17 @@ impl EnvConfig {
     }
 
     /// These constants without what only training draws, as evaluations drive an agent: no
-    /// LiDAR noise, no robustness perturbations, no varied training robots (`dvst`) and no
-    /// subgoals (`dvnav eval` adds back what its command line asks for).
+    /// LiDAR noise, no robustness perturbations, no varied training robots (`dvst`), no
+    /// subgoals (`dvnav eval` adds back what its command line asks for) and the paper's
+    /// straight-line progress reward (a geodesic field per episode would slow evaluations, and
+    /// their scores stay comparable with earlier ones).
     pub fn clean(&self) -> EnvConfig {
         EnvConfig {
             dvst: None,
             subgoals: None,
             robustness: Default::default(),
             lidar: LidarConfig { noise_std: 0.0, ..self.lidar.clone() },
+            reward: RewardConfig { geodesic_progress: false, ..self.reward.clone() },
             ..self.clone()
         }
     }

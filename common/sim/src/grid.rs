@@ -623,5 +623,8 @@ impl Ord for Open {
     }
 }
 
+mod geodesic;
+pub use geodesic::GeodesicField;
+
 #[cfg(test)]
 mod tests;

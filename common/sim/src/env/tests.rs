@@ -1060,3 +1060,37 @@ fn a_long_route_gets_time_in_proportion_to_its_path() {
     };
     assert_eq!((outcome, steps), (Outcome::Timeout, limit));
 }
+
+#[test]
+fn a_geodesic_reward_pays_for_the_way_round_a_wall_not_for_the_wall() {
+    // A wall down x = 0 from the top to y = -1.5; the goal behind it.
+    let mut spec = RoomSpec::empty("way-round", 6.0);
+    let t = Some(0.1);
+    spec.wall_segments =
+        vec![crate::spec::WallSegment { from: [0.0, 3.0], to: [0.0, -1.5], thickness: t }];
+    let room = Arc::new(Room::new(spec));
+    let (start_at, goal) = ([-1.5, 1.0], [1.5, 1.0]);
+    let run = |geodesic: bool, heading: f64| {
+        let mut c = cfg();
+        c.reward.geodesic_progress = geodesic;
+        let mut env = NavEnv::new(room.clone(), &c, 1);
+        env.reset_to(Pose2::new(start_at[0], start_at[1], heading), goal);
+        (0..5).map(|_| env.step(0.5, 0.0).reward as f64).sum::<f64>()
+    };
+    // Half a metre straight at the goal (and at the wall) against half a metre down towards
+    // the end of the wall: the straight line pays the first (+0.95 against −0.13); the way
+    // round pays the second (it shortens the way by ~0.43 m, the first by ~0.2 m).
+    let (at_wall, down) = (0.0, -FRAC_PI_2);
+    let (straight_at_wall, straight_down) = (run(false, at_wall), run(false, down));
+    assert!(straight_at_wall > 0.9 && straight_down < 0.0, "{straight_at_wall} {straight_down}");
+    let (geodesic_at_wall, geodesic_down) = (run(true, at_wall), run(true, down));
+    assert!(
+        geodesic_down > geodesic_at_wall + 0.3,
+        "down {geodesic_down} against at the wall {geodesic_at_wall}"
+    );
+    assert!((geodesic_down - 0.81).abs() < 0.1, "{geodesic_down}");
+    // Evaluations keep the paper's reward.
+    let mut c = cfg();
+    c.reward.geodesic_progress = true;
+    assert!(!c.clean().reward.geodesic_progress);
+}

@@ -125,3 +125,53 @@ fn connected_pairs_lie_in_one_component_and_far_enough_apart() {
     }
     assert_eq!(reach.random_connected_pairs(&mut rng, 1, 100.0), None);
 }
+
+/// A room of side 6 with a wall down x = 0 from the top to y = −1.5, leaving a 1.5 m way round
+/// at the bottom, and a gap of `gap` m in it centred at y = 1.
+fn wall_with_a_way_round(gap: f64) -> RoomSpec {
+    let mut spec = RoomSpec::empty("way-round", 6.0);
+    let t = Some(0.1);
+    spec.wall_segments = vec![
+        WallSegment { from: [0.0, 3.0], to: [0.0, 1.0 + gap / 2.0], thickness: t },
+        WallSegment { from: [0.0, 1.0 - gap / 2.0], to: [0.0, -1.5], thickness: t },
+    ];
+    spec
+}
+
+#[test]
+fn the_geodesic_field_goes_round_the_wall_and_through_a_gap_only_where_the_disc_fits() {
+    let map = ClearanceMap::of_room(&wall_with_a_way_round(0.45));
+    let (start, goal) = ([-1.5, 1.0], [1.5, 1.0]);
+    // The 0.2 m disc does not fit the 0.45 m gap: its way is round the bottom of the wall.
+    let big = map.reach(0.2);
+    let field = big.field_to(goal, 0.0).expect("the goal has room");
+    let round = field.distance(start).unwrap();
+    let reference = big.path_length(start, goal, 0.0).unwrap();
+    // Round the wall's end: 2·hypot(1.5, 2.75) = 6.27 m for the exact disc, ~6.45 m with the
+    // raster's clearance (the radius plus a cell diagonal from occupied centres).
+    assert!((6.2..6.6).contains(&round), "round the wall: {round}");
+    // No longer than the 8-connected A* through the same cells (up to 8 % over).
+    assert!(round <= reference + 1e-6, "field {round} against A* {reference}");
+    // The 0.1 m disc takes the gap: the straight line, give or take the grid.
+    let small = map.reach(0.1).field_to(goal, 0.0).unwrap();
+    let through = small.distance(start).unwrap();
+    assert!((through - 3.0).abs() < 0.1, "{through}");
+    // Near the goal the field is the straight join, and it falls along the way round.
+    assert!(field.distance([1.4, 1.0]).unwrap() < 0.15);
+    let below = field.distance([-1.0, -2.2]).unwrap();
+    assert!(below < round - 2.0, "{below} should be well under {round} once round the end");
+    // Against the wall (0.25 m from its centre line, touching it), the way is still round:
+    // the cells the search finds are on the robot's own side, not through the wall.
+    let beside = field.distance([-0.25, 0.0]).unwrap();
+    assert!(beside > 4.0, "{beside}: round the end from beside the wall is ~4.9 m");
+    // A point cut off from the goal (walled in) has no value.
+    let mut spec = wall_with_a_way_round(0.45);
+    spec.wall_segments.push(WallSegment {
+        from: [0.0, -1.5],
+        to: [0.0, -3.0],
+        thickness: Some(0.1),
+    });
+    let shut = ClearanceMap::of_room(&spec).reach(0.2).field_to(goal, 0.0).unwrap();
+    assert_eq!(shut.distance(start), None);
+    assert!(shut.distance([2.0, -2.0]).is_some());
+}
