@@ -740,12 +740,14 @@ impl NavEnv {
         if !self.cfg.reward.geodesic_progress || follows {
             return None;
         }
-        // The room's cached reach for the radius rounded up to whole centimetres, as the task
-        // draw shares it ([`NavEnv::draw_task`]): building it again would cost more than the
-        // field. No slack: `Reach::entries` still joins the goal through the cells within 1.5
-        // of its own, which a goal drawn with the robot's clearance always has.
+        // The room's cached cells for the radius rounded up to whole centimetres (building
+        // them again would cost more than the field), where the disc's centre fits exactly:
+        // the planner's conservative reach shuts gaps the robot drives through, and the reward
+        // would then pay the way round them. No slack: `Reach::entries` still joins the goal
+        // through the cells within 1.5 of its own, which a goal drawn with the robot's
+        // clearance always has.
         let r_grid = (self.radius * 100.0).ceil() / 100.0;
-        let field = self.room.planning_reach(r_grid).field_to(goal, 0.0)?;
+        let field = self.room.centre_reach(r_grid).field_to(goal, 0.0)?;
         let d = field.distance(start)?;
         Some((field, d))
     }

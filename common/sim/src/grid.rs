@@ -623,6 +623,7 @@ impl Ord for Open {
     }
 }
 
+mod centres;
 mod geodesic;
 pub use geodesic::GeodesicField;
 

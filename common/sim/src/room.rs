@@ -44,6 +44,8 @@ pub struct Room {
     reach: Mutex<Vec<(u64, Arc<Reach>)>>,
     /// The same on the planner's raster, where it is finer.
     planning_reach: Mutex<Vec<(u64, Arc<Reach>)>>,
+    /// Where discs' centres fit exactly, on the planner's raster ([`Room::centre_reach`]).
+    centre_reach: Mutex<Vec<(u64, Arc<Reach>)>>,
 }
 
 /// One timed obstacle, ready for queries.
@@ -118,12 +120,21 @@ impl Body {
 
 /// `map`'s reach for `radius` from `cache`, computed and kept there on first use.
 fn reach_of(cache: &Mutex<Vec<(u64, Arc<Reach>)>>, map: &ClearanceMap, radius: f64) -> Arc<Reach> {
+    cached(cache, radius, || map.reach(radius))
+}
+
+/// The entry of `cache` for `radius`, built by `build` on first use.
+fn cached(
+    cache: &Mutex<Vec<(u64, Arc<Reach>)>>,
+    radius: f64,
+    build: impl FnOnce() -> Reach,
+) -> Arc<Reach> {
     let key = radius.to_bits();
     let mut cache = cache.lock().unwrap_or_else(|e| e.into_inner());
     if let Some((_, r)) = cache.iter().find(|(k, _)| *k == key) {
         return r.clone();
     }
-    let r = Arc::new(map.reach(radius));
+    let r = Arc::new(build());
     cache.push((key, r.clone()));
     r
 }
@@ -181,6 +192,7 @@ impl Room {
             planning_map: OnceLock::new(),
             reach: Mutex::new(Vec::new()),
             planning_reach: Mutex::new(Vec::new()),
+            centre_reach: Mutex::new(Vec::new()),
         })
     }
 
@@ -276,6 +288,16 @@ impl Room {
             return self.reach(radius);
         }
         reach_of(&self.planning_reach, self.planning_map(), radius)
+    }
+
+    /// Where the centre of a disc of `radius` fits, measured exactly at the cell centres of the
+    /// planner's raster ([`ClearanceMap::reach_of_centres`]): the cells the progress reward's
+    /// way runs through, which take every gap the disc fits (the planner's reach shuts gaps up
+    /// to a cell diagonal wider than the disc). Computed on first use for each radius and kept.
+    pub fn centre_reach(&self, radius: f64) -> Arc<Reach> {
+        cached(&self.centre_reach, radius, || {
+            self.planning_map().reach_of_centres(&self.spec, radius)
+        })
     }
 
     /// Whether the planner's raster is finer than the task-sampling one (a room over 10 m).

@@ -175,3 +175,34 @@ fn the_geodesic_field_goes_round_the_wall_and_through_a_gap_only_where_the_disc_
     assert_eq!(shut.distance(start), None);
     assert!(shut.distance([2.0, -2.0]).is_some());
 }
+
+#[test]
+fn the_centre_reach_takes_every_gap_the_disc_fits_and_no_other() {
+    let spec = wall_with_a_way_round(0.45);
+    let map = ClearanceMap::of_room(&spec);
+    let (start, goal) = ([-1.5, 1.0], [1.5, 1.0]);
+    let way = |radius: f64| {
+        let field = map.reach_of_centres(&spec, radius).field_to(goal, 0.0).unwrap();
+        field.distance(start).unwrap()
+    };
+    // The 0.2 m disc fits the 0.45 m gap with 2.5 cm to spare, which the conservative reach
+    // (the radius plus a 3.5 cm cell diagonal) shuts: the exact cells take the gap.
+    assert!((way(0.2) - 3.0).abs() < 0.1, "through the gap: {}", way(0.2));
+    let conservative = map.reach(0.2).field_to(goal, 0.0).unwrap().distance(start).unwrap();
+    assert!(conservative > 6.0, "the conservative reach goes round: {conservative}");
+    // A 0.23 m disc (0.46 m across) does not fit: round the wall's end (6.27 m exactly).
+    assert!((6.1..6.5).contains(&way(0.23)), "round the wall: {}", way(0.23));
+    // Every passable centre is clear of the shapes by the radius, on the whole raster.
+    let reach = map.reach_of_centres(&spec, 0.2);
+    let r = reach.raster().clone();
+    let walls = spec.walls();
+    for j in 0..r.n {
+        for i in 0..r.n {
+            if reach.label[r.index(i, j)] != 0 {
+                let c = r.centre(i, j);
+                let near = walls.iter().map(|w| distance_to_convex(w, c)).fold(f64::MAX, f64::min);
+                assert!(near >= 0.2 - 1e-9, "{c:?} is {near} from a wall");
+            }
+        }
+    }
+}

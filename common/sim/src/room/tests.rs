@@ -297,6 +297,14 @@ fn gate_admits_025_blocks_030_and_the_left_path_admits_075() {
     }
     // The path is 1.7 m wide: 0.85 m is the largest radius through it.
     assert!(!reachable(&room, 0.86, route.start, route.goals[0], |_, _| true), "0.86 m");
+    // The progress reward's way (the exact centre reach) is the gate's paper route for 0.25
+    // (3 m straight through the 0.55 m gap) and the left path for 0.30.
+    let way = |r: f64| {
+        let field = room.centre_reach(r).field_to(route.goals[0], 0.0).unwrap();
+        field.distance(route.start).unwrap()
+    };
+    assert!((way(0.25) - 3.0).abs() < 0.1, "R 0.25: {}", way(0.25));
+    assert!(way(0.30) > 4.0, "R 0.30: {}", way(0.30));
     // Every robot of design §2's twelve (0.20 … 0.75 m) starts and ends in free space.
     for k in 0..12 {
         let r = 0.20 + 0.05 * k as f64;
