@@ -118,6 +118,12 @@ pub struct NavEnv {
     geodesic: Option<(GeodesicField, f64)>,
 }
 
+/// The radius a room's cached grids ([`Room::reach`], [`Room::centre_reach`]) are built for: the
+/// robot's rounded up to whole centimetres, so a drawn radius range shares a few grids per room.
+fn grid_radius(r: f64) -> f64 {
+    (r * 100.0).ceil() / 100.0
+}
+
 impl NavEnv {
     /// An environment in `room`, seeded with `seed`, already reset to its first episode.
     ///
@@ -265,10 +271,9 @@ impl NavEnv {
     /// Draws this episode's start and goal for the robot as it is now, and begins it.
     fn draw_task(&mut self) -> Result<(), NoTask> {
         let need = self.footprint.bounding_radius() + self.cfg.spawn_clearance;
-        // The grid for the radius rounded up to whole centimetres, so a drawn radius range
-        // shares a few grids per room; the rounding comes out of the join slack.
+        // The rounding of `grid_radius` comes out of the join slack.
         let r = self.footprint.bounding_radius();
-        let r_grid = (r * 100.0).ceil() / 100.0;
+        let r_grid = grid_radius(r);
         // Long tasks (a route, any way round) are the planner's: a goal is reachable when it
         // can plan there, on its finer raster (in a building, through doors the sampling
         // raster's conservative cells call shut).
@@ -740,14 +745,13 @@ impl NavEnv {
         if !self.cfg.reward.geodesic_progress || follows {
             return None;
         }
-        // The room's cached cells for the radius rounded up to whole centimetres (building
-        // them again would cost more than the field), where the disc's centre fits exactly:
+        // The room's cached cells for the radius on the task draw's grid (building them again
+        // would cost more than the field), where the disc's centre fits exactly:
         // the planner's conservative reach shuts gaps the robot drives through, and the reward
         // would then pay the way round them. No slack: `Reach::entries` still joins the goal
         // through the cells within 1.5 of its own, which a goal drawn with the robot's
         // clearance always has.
-        let r_grid = (self.radius * 100.0).ceil() / 100.0;
-        let field = self.room.centre_reach(r_grid).field_to(goal, 0.0)?;
+        let field = self.room.centre_reach(grid_radius(self.radius)).field_to(goal, 0.0)?;
         let d = field.distance(start)?;
         Some((field, d))
     }
