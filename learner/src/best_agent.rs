@@ -18,8 +18,11 @@
 //! instead: an agent that passes at least that many robots ranks above every agent that
 //! passes fewer, and the rooms (or the selection's rows) alone score it. Why: averaged, one
 //! more gate robot (1/12 of half the score) outweighed 7 points of local success, and g32
-//! kept a 12-of-12 agent that was worse in the held-out rooms than its 11-of-12 peers. A later
-//! evaluation that ranks as high replaces the kept one (more training, same score).
+//! kept a 12-of-12 agent that was worse in the held-out rooms than its 11-of-12 peers. Agents
+//! below the bar rank among themselves as they would without one (the rooms and the gate's
+//! share averaged): ranked by the rooms alone, a run that never reached the bar kept a gate-7
+//! agent over its gate-11 ones (g40, seed 1). A later evaluation that ranks as high replaces
+//! the kept one (more training, same score).
 
 use dvnav_eval::{RobotResult, RoomSummary};
 use serde::{Deserialize, Serialize};
@@ -65,10 +68,21 @@ impl BestRecord {
         self.gate_bar.is_none_or(|bar| self.gate_passed.is_some_and(|passed| passed >= bar))
     }
 
+    /// What orders agents on the same side of their gate bar: the score, except below the bar,
+    /// where the gate's share of passing robots is averaged in as it is without a bar.
+    pub fn rank_score(&self) -> f64 {
+        match (self.clears_gate_bar(), self.gate_passed, self.gate_robots) {
+            (false, Some(passed), Some(robots)) if robots > 0 => {
+                (self.score + passed as f64 / robots as f64) / 2.0
+            }
+            _ => self.score,
+        }
+    }
+
     /// Whether `self` ranks below `other`: an agent below its gate bar ranks below every agent
-    /// that clears its own, and the score orders agents on the same side.
+    /// that clears its own, and [`Self::rank_score`] orders agents on the same side.
     pub fn ranks_below(&self, other: &BestRecord) -> bool {
-        (self.clears_gate_bar(), self.score) < (other.clears_gate_bar(), other.score)
+        (self.clears_gate_bar(), self.rank_score()) < (other.clears_gate_bar(), other.rank_score())
     }
 }
 
@@ -387,8 +401,14 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mut best = BestAgent::open(dir.path()).with_gate_bar(11);
         let offer = |best: &mut BestAgent, u, m| best.offer(at(u), b"w", m, "").unwrap().cloned();
-        // Below the bar an agent is kept until one clears it, then never replaces it.
+        // Below the bar an agent is kept until one clears it, then never replaces it; below
+        // it the gate counts as without a bar (g40 seed 1 kept a gate-7 agent by its rooms).
         assert!(offer(&mut best, 100, m(g10, s938)).is_some());
+        let sels_below = [[room(0.99, 16)], [room(0.95, 16)]];
+        let g7 = gate(7);
+        assert!(offer(&mut best, 150, m(&g7, &sels_below[0])).is_none(), "7 of 12 at 0.99");
+        assert_eq!(offer(&mut best, 160, m(g10, &sels_below[1])).map(|k| k.updates), Some(160));
+        assert!(offer(&mut best, 170, m(g10, s851)).is_none(), "the same gate, worse rooms");
         let kept = offer(&mut best, 200, m(g12, s851)).unwrap();
         assert!(kept.clears_gate_bar() && kept.gate_bar == Some(11));
         assert!(offer(&mut best, 300, m(g10, s938)).is_none(), "10 of 12 is below the bar");
