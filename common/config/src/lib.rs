@@ -343,8 +343,8 @@ pub struct SelectionConfig {
     /// With `learner.eval_gate`: the gate test as a bar instead of half the score. An agent
     /// whose gate test passes at least this many of its twelve robots ranks above every agent
     /// that passes fewer, and among those the selection's rows alone decide; agents below the
-    /// bar rank among themselves as without one (so a run that never reaches it still keeps
-    /// its best gate, g40). 0 (the default):
+    /// bar rank among themselves as without one (a run that never reaches it ranked by the
+    /// selection alone kept a gate-7 agent over its gate-11 ones, g40). 0 (the default):
     /// the score is the mean of the rows' success and the gate's share, as g28-g32 ran, which
     /// let a 12-of-12 agent with weaker local skill win over an 11-of-12 one (g32).
     #[serde(skip_serializing_if = "is_zero")]
