@@ -73,7 +73,7 @@ impl BestRecord {
     pub fn rank_score(&self) -> f64 {
         match (self.clears_gate_bar(), self.gate_passed, self.gate_robots) {
             (false, Some(passed), Some(robots)) if robots > 0 => {
-                (self.score + passed as f64 / robots as f64) / 2.0
+                with_gate(self.score, passed as f64 / robots as f64)
             }
             _ => self.score,
         }
@@ -105,7 +105,7 @@ pub fn selection_score(m: Measured, gate_bar: Option<usize>) -> Option<f64> {
     let rooms = mean_success(m.selection.unwrap_or(m.rows))?.0;
     Some(match m.gate {
         Some(robots) if !robots.is_empty() && gate_bar.is_none() => {
-            (rooms + gate_share(robots)) / 2.0
+            with_gate(rooms, gate_share(robots))
         }
         _ => rooms,
     })
@@ -117,6 +117,12 @@ pub fn mean_success(rows: &[RoomSummary]) -> Option<(f64, usize)> {
     let rates: Vec<f64> =
         rows.iter().filter(|r| r.rates.episodes > 0).map(|r| r.rates.success_rate).collect();
     (!rates.is_empty()).then(|| (rates.iter().sum::<f64>() / rates.len() as f64, rates.len()))
+}
+
+/// The score without a gate bar: the rooms' mean and the gate's share of passing robots, each
+/// half.
+fn with_gate(rooms: f64, gate_share: f64) -> f64 {
+    (rooms + gate_share) / 2.0
 }
 
 fn gate_share(robots: &[RobotResult]) -> f64 {
