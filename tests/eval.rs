@@ -314,6 +314,51 @@ fn long_tasks_report_planned_routes() {
     assert!(json(&out)[0].get("subgoals").is_none());
 }
 
+/// The rotation shim follows the checkpoint's `[env.subgoals] rotation_shim` unless a flag says
+/// otherwise: `--rotation-shim` on a checkpoint trained without it drives exactly as a checkpoint
+/// whose config turns it on, and differently from the config's own setting; the two flags
+/// together, or either without planned routes, are refused.
+#[test]
+fn the_rotation_shim_flags_override_the_checkpoints_setting() {
+    let dir = tempfile::tempdir().unwrap();
+    let with = |shim: bool| {
+        let mut cfg = tiny_config();
+        cfg.env.subgoals =
+            Some(dvnav_sim::subgoal::SubgoalConfig { rotation_shim: shim, ..Default::default() });
+        let ckpt = dir.path().join(format!("shim-{shim}"));
+        write_checkpoint(&ckpt, &cfg);
+        ckpt.to_str().unwrap().to_string()
+    };
+    let (off, on) = (with(false), with(true));
+    let run = |ck: &str, flag: Option<&str>| {
+        let mut args =
+            vec!["--checkpoint", ck, "--room", "env3", "--tasks", "long", "--episodes", "8"];
+        args.extend(flag);
+        args.push("--json");
+        json(&eval(&args))[0].clone()
+    };
+    let forced = run(&off, Some("--rotation-shim"));
+    assert_eq!(forced, run(&on, None), "--rotation-shim drives as a config with the shim");
+    assert_ne!(forced, run(&off, None), "the flag changes a shim-less checkpoint's episodes");
+    assert_eq!(run(&on, Some("--no-rotation-shim")), run(&off, None));
+
+    let stderr = |o: Output| {
+        assert!(!o.status.success());
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    let e = stderr(eval(&["--checkpoint", &off, "--rotation-shim"]));
+    assert!(e.contains("--rotation-shim") && e.contains("--subgoals planner"), "{e}");
+    let e = stderr(eval(&[
+        "--checkpoint",
+        &off,
+        "--tasks",
+        "long",
+        "--rotation-shim",
+        "--no-rotation-shim",
+    ]));
+    assert!(e.contains("--rotation-shim") && e.contains("--no-rotation-shim"), "{e}");
+}
+
 /// `dvnav train` evaluates every `learner.eval_every_updates` updates: rows per curriculum room
 /// in `eval.csv`, the route legs in `mcap/eval/`, a line per room in the learner's log.
 #[test]

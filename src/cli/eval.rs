@@ -136,8 +136,12 @@ pub struct EvalArgs {
     #[arg(long, value_name = "M")]
     pub lookahead: Option<f64>,
     /// With subgoals: no rotation shim (the agent drives from the first cycle after a plan).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "rotation_shim")]
     pub no_rotation_shim: bool,
+    /// With subgoals: the rotation shim on whatever the checkpoint's config says (after each
+    /// plan the robot turns in place until the subgoal is within `shim_angle_deg`).
+    #[arg(long)]
+    pub rotation_shim: bool,
     /// With subgoals: clearance (m) the planner keeps beyond the robot's bounding radius
     /// (`[env.subgoals.planner] margin_m`; 0 by default).
     #[arg(long, value_name = "M")]
@@ -279,7 +283,7 @@ fn eval_env(args: &EvalArgs, cfg: &Config) -> anyhow::Result<dvnav_config::EnvCo
             // A run's mixed training share is not an evaluation setting: every task the same way.
             follow_share: 1.0,
             lookahead_m: args.lookahead.unwrap_or(base.lookahead_m),
-            rotation_shim: base.rotation_shim && !args.no_rotation_shim,
+            rotation_shim: (base.rotation_shim || args.rotation_shim) && !args.no_rotation_shim,
             planner: dvnav_sim::planner::PlannerConfig {
                 margin_m: args.planner_margin.unwrap_or(base.planner.margin_m),
                 ..base.planner.clone()
@@ -297,9 +301,11 @@ fn eval_env(args: &EvalArgs, cfg: &Config) -> anyhow::Result<dvnav_config::EnvCo
     anyhow::ensure!(
         plan || (args.lookahead.is_none()
             && !args.no_rotation_shim
+            && !args.rotation_shim
             && args.planner_margin.is_none()
             && args.time_limit_factor.is_none()),
-        "--lookahead, --no-rotation-shim, --planner-margin and --time-limit-factor are for \
+        "--lookahead, --rotation-shim, --no-rotation-shim, --planner-margin and --time-limit-factor \
+         are for \
          --subgoals planner (or --tasks long)"
     );
     if let Some(s) = &env.subgoals {
