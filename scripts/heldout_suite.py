@@ -105,7 +105,13 @@ def main():
                    help="DVST safety margin (m) for every suite but the kept checks (default: dvnav eval's, 0 m)")
     p.add_argument("--no-kept", dest="kept", action="store_false",
                    help="skip the kept checks (gate test, Env_3, dynamic scenario)")
+    p.add_argument("--latency-compensation", action="store_true",
+                   help="noisy suites: carry the delayed observation forward by the commands sent "
+                        "since (dvnav eval --latency-compensation), as a controller that knows its "
+                        "sensors' delay would")
     a = p.parse_args()
+    if a.latency_compensation:
+        NOISE["noisy"] = NOISE["noisy"] + ["--latency-compensation"]
     if a.margin is not None and not a.margin >= 0.0:
         p.error(f"--margin must be a length of at least 0 m, not {a.margin}")
     margin = [] if a.margin is None else ["--margin", str(a.margin)]

@@ -241,6 +241,8 @@ fn bad_input_fails_with_a_clear_message() {
     assert!(e.contains("--planner-margin") && e.contains("--subgoals planner"), "{e}");
     let e = stderr(&eval(&["--checkpoint", ok, "--tasks", "long", "--time-limit-factor=-1"]));
     assert!(e.contains("--time-limit-factor") && e.contains("≥ 0"), "{e}");
+    let e = stderr(&eval(&["--checkpoint", ok, "--latency-compensation"]));
+    assert!(e.contains("--latency-compensation") && e.contains("--latency K"), "{e}");
     let e = stderr(&eval(&["--checkpoint", ck, "--tasks", "medium"]));
     assert!(e.contains("--tasks") && e.contains("long"), "{e}");
 }

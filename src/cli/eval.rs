@@ -94,6 +94,11 @@ pub struct EvalArgs {
     /// Cycles of observation latency: the policy sees the observation of K cycles ago.
     #[arg(long, value_name = "K", default_value_t = 0)]
     pub latency: u32,
+    /// With --latency: carry the delayed scan and goal forward to the robot's pose now by the
+    /// commands sent since (`env.latency_compensation`), as a controller that knows its
+    /// sensors' delay would.
+    #[arg(long)]
+    pub latency_compensation: bool,
     /// Gaussian actuation noise σ on the executed command: `V,W` (m/s, rad/s).
     #[arg(long, value_name = "V,W", value_parser = parse_pair)]
     pub actuation_noise: Option<[f64; 2]>,
@@ -353,6 +358,12 @@ fn eval_env(args: &EvalArgs, cfg: &Config) -> anyhow::Result<dvnav_config::EnvCo
         dt_jitter: args.dt_jitter,
         randomize: None,
     };
+    anyhow::ensure!(
+        !args.latency_compensation || args.latency > 0,
+        "--latency-compensation carries a delayed observation forward: it needs --latency K \
+         (K ≥ 1 cycles)"
+    );
+    env.latency_compensation |= args.latency_compensation;
     anyhow::ensure!(
         args.noise_std.is_finite() && args.noise_std >= 0.0,
         "--noise-std must be a σ of at least 0 m, not {}",

@@ -4,10 +4,11 @@ use super::grid::{GeodesicField, Reach};
 use super::room::Body;
 use super::sensor::MountedSensor;
 use super::spec::Point;
-use super::{Footprint, Lidar, Pose2, Room, dist, wrap_angle};
+use super::{Footprint, Lidar, Pose2, Room, advance, dist, wrap_angle};
 use crate::EnvConfig;
 use crate::Outcome;
-use crate::laser_scan;
+use crate::laser_scan::{self, BeamLayout};
+use crate::latency;
 use crate::obs;
 use crate::robustness::Perturbation;
 use crate::transfer::{VelocityBounds, transfer_observation_in_place, transfer_policy};
@@ -110,6 +111,9 @@ pub struct NavEnv {
     perturb: Perturbation,
     /// With observation latency k: the last k + 1 observations, oldest first.
     history: VecDeque<Vec<f32>>,
+    /// With observation latency k: the last k commands (real units), oldest first: what was
+    /// sent since the observation the agent sees was made.
+    commands: VecDeque<(f64, f64)>,
     /// `EnvConfig::subgoals`: this episode's planned path and subgoal rule.
     route: Option<RouteState>,
     /// `env.reward.geodesic_progress`, when the agent observes its final goal: the way to the
@@ -212,6 +216,7 @@ impl NavEnv {
             robust_rng: Pcg64::seed_from_u64(seed ^ ROBUSTNESS_STREAM),
             perturb: Perturbation::default(),
             history: VecDeque::new(),
+            commands: VecDeque::new(),
             route: None,
             geodesic: None,
         }
@@ -462,10 +467,14 @@ impl NavEnv {
         }
         self.update_scan();
         self.history.clear();
+        self.commands.clear();
         if self.perturb.latency_steps > 0 {
             let mut o = vec![0.0; self.obs_dim()];
             self.compose_obs(&mut o);
-            self.history.extend(std::iter::repeat_n(o, self.perturb.latency_steps as usize + 1));
+            let k = self.perturb.latency_steps as usize;
+            self.history.extend(std::iter::repeat_n(o, k + 1));
+            // The robot stood still before its first command.
+            self.commands.extend(std::iter::repeat_n((0.0, 0.0), k));
         }
     }
 
@@ -477,6 +486,8 @@ impl NavEnv {
         let mut o = self.history.pop_front().unwrap_or_else(|| vec![0.0; self.obs_dim()]);
         self.compose_obs(&mut o);
         self.history.push_back(o);
+        self.commands.pop_front();
+        self.commands.push_back((self.v, self.omega));
     }
 
     fn update_scan(&mut self) {
@@ -656,6 +667,20 @@ impl NavEnv {
             Some(old) => {
                 out.copy_from_slice(old);
                 let beams = self.scan.len();
+                if self.cfg.latency_compensation {
+                    let moved = latency::motion_since(self.commands.iter().copied(), self.cfg.dt);
+                    let lidar = &self.cfg.lidar;
+                    let layout = BeamLayout::new(lidar.beams, lidar.fov_deg);
+                    let range = [lidar.range_min, lidar.range_max];
+                    latency::predict_scan(&old[..beams], layout, range, moved, &mut out[..beams]);
+                    let (d, b) = latency::predict_goal(
+                        f64::from(old[beams + obs::GOAL_DISTANCE]),
+                        f64::from(old[beams + obs::GOAL_ANGLE]),
+                        moved,
+                    );
+                    out[beams + obs::GOAL_DISTANCE] = d as f32;
+                    out[beams + obs::GOAL_ANGLE] = b as f32;
+                }
                 out[beams + obs::LINEAR_VELOCITY] = self.v as f32;
                 out[beams + obs::ANGULAR_VELOCITY] = self.omega as f32;
             }
@@ -877,19 +902,6 @@ impl NavEnv {
     pub fn timed_active(&self) -> usize {
         self.active
     }
-}
-
-/// The unicycle's pose after driving `(v, ω)` for `t` seconds from `p`, in closed form.
-///
-/// The arc's chord has length v·t·sinc(ω·t/2) and points along the mean heading
-/// yaw + ω·t/2; written this way it needs no separate straight-line case and stays accurate as
-/// ω → 0.
-fn advance(p: Pose2, v: f64, omega: f64, t: f64) -> Pose2 {
-    let half = 0.5 * omega * t;
-    let sinc = if half.abs() < 1e-4 { 1.0 - half * half / 6.0 } else { half.sin() / half };
-    let chord = v * t * sinc;
-    let (s, c) = (p.yaw + half).sin_cos();
-    Pose2 { x: p.x + chord * c, y: p.y + chord * s, yaw: p.yaw + omega * t }
 }
 
 #[cfg(test)]

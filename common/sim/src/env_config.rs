@@ -82,6 +82,11 @@ pub struct EnvConfig {
     /// (`[env.robustness]`; none by default).
     #[serde(skip_serializing_if = "is_default")]
     pub robustness: crate::RobustnessConfig,
+    /// With observation latency, carry the delayed scan and goal forward to the robot's pose
+    /// now by the commands sent since ([`crate::latency`]), as a controller that knows its
+    /// sensors' delay would. Off by default (the agent sees the delayed observation).
+    #[serde(skip_serializing_if = "is_false")]
+    pub latency_compensation: bool,
 }
 
 // Keys added after the first release stay out of a config's TOML (and its hash) while they
@@ -126,6 +131,7 @@ impl Default for EnvConfig {
             dvst: None,
             reward: RewardConfig::default(),
             robustness: crate::RobustnessConfig::default(),
+            latency_compensation: false,
         }
     }
 }

@@ -60,6 +60,7 @@ pub mod generate;
 pub mod grid;
 pub mod grid_map;
 pub mod laser_scan;
+pub mod latency;
 mod lidar;
 pub mod obs;
 mod outcome;
@@ -124,6 +125,19 @@ impl Pose2 {
         let (dx, dy) = (p[0] - self.x, p[1] - self.y);
         [c * dx + s * dy, -s * dx + c * dy]
     }
+}
+
+/// The unicycle's pose after driving `(v, ω)` for `t` seconds from `p`, in closed form.
+///
+/// The arc's chord has length v·t·sinc(ω·t/2) and points along the mean heading
+/// yaw + ω·t/2; written this way it needs no separate straight-line case and stays accurate as
+/// ω → 0.
+pub(crate) fn advance(p: Pose2, v: f64, omega: f64, t: f64) -> Pose2 {
+    let half = 0.5 * omega * t;
+    let sinc = if half.abs() < 1e-4 { 1.0 - half * half / 6.0 } else { half.sin() / half };
+    let chord = v * t * sinc;
+    let (s, c) = (p.yaw + half).sin_cos();
+    Pose2 { x: p.x + chord * c, y: p.y + chord * s, yaw: p.yaw + omega * t }
 }
 
 /// Euclidean distance between two points (m).

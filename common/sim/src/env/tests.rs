@@ -703,6 +703,59 @@ fn latency_shows_the_scan_and_goal_of_k_steps_ago_and_the_command_as_sent() {
     }
 }
 
+/// `env.latency_compensation`: with two cycles of latency the agent sees the delayed scan and
+/// goal carried forward by the two commands since, close to what the robot sees now, where
+/// without it the observation is two cycles old; the goal to a few millimetres (the command
+/// is exactly what the robot drove), the scan beam by beam to 5 cm mostly.
+#[test]
+fn latency_compensation_carries_the_delayed_observation_to_the_pose_now() {
+    let room = empty_room(6.0);
+    let r = crate::RobustnessConfig { latency_steps: 2, ..Default::default() };
+    let mut compensated = robust(r.clone());
+    compensated.latency_compensation = true;
+    let mut clean = NavEnv::new(room.clone(), &cfg(), 8);
+    let mut late = NavEnv::new(room.clone(), &robust(r), 8);
+    let mut carried = NavEnv::new(room, &compensated, 8);
+    // Circling (0.625 m radius) by a wall: no collision, so the robot drives what it was sent.
+    for env in [&mut clean, &mut late, &mut carried] {
+        env.reset_to(Pose2::new(-1.5, -1.0, 0.0), [2.0, 1.5]);
+    }
+    let d = clean.obs_dim();
+    let beams = d - 4;
+    let (mut c, mut l, mut k) = (vec![0.0; d], vec![0.0; d], vec![0.0; d]);
+    let (mut close_late, mut close_carried, mut total) = (0, 0, 0);
+    for t in 0..8 {
+        clean.write_obs(&mut c);
+        late.write_obs(&mut l);
+        carried.write_obs(&mut k);
+        // Commands the same: the last one sent.
+        assert_eq!(k[beams + obs::LINEAR_VELOCITY..], c[beams + obs::LINEAR_VELOCITY..]);
+        if t >= 2 {
+            let goal = beams + obs::GOAL_DISTANCE;
+            assert!((k[goal] - c[goal]).abs() < 1e-3, "step {t}: {} vs {}", k[goal], c[goal]);
+            assert!((l[goal] - c[goal]).abs() > 0.05, "step {t}: the delayed goal differs");
+            let angle = beams + obs::GOAL_ANGLE;
+            assert!((k[angle] - c[angle]).abs() < 1e-3, "step {t}: {} vs {}", k[angle], c[angle]);
+            for i in 0..beams {
+                total += 1;
+                close_late += ((l[i] - c[i]).abs() <= 0.05) as usize;
+                close_carried += ((k[i] - c[i]).abs() <= 0.05) as usize;
+            }
+        }
+        for env in [&mut clean, &mut late, &mut carried] {
+            env.step(0.5, 0.8);
+        }
+        assert_eq!(clean.pose(), carried.pose(), "compensation changes what is seen only");
+    }
+    let share = |n: usize| n as f64 / total as f64;
+    assert!(
+        share(close_carried) >= 0.9,
+        "{} of the carried beams within 5 cm",
+        share(close_carried)
+    );
+    assert!(share(close_late) < share(close_carried) - 0.3, "{} delayed", share(close_late));
+}
+
 #[test]
 fn actuation_noise_moves_the_robot_off_the_command_and_jitter_stretches_steps() {
     let room = empty_room(8.0);

@@ -1,0 +1,76 @@
+//! Latency compensation: a scan and a goal observed `k` control cycles ago, carried forward to
+//! where the robot is now by the commands it has sent since (a controller always knows those;
+//! only its sensors lag). The classic answer to a known dead time (a Smith predictor's
+//! forward model): the policy then acts on the world as it is, not as it was.
+//!
+//! - **Motion:** the commands since the observation, each driven for one nominal control
+//!   period along the unicycle's exact arc, give the robot's pose now in the frame it had then.
+//! - **Scan:** the old scan is the scan of a sensor that sits where the robot was, so it is
+//!   resampled to the robot's beams with that pose as the sensor's mounting
+//!   ([`crate::laser_scan::resample`], the code `dvnav serve` runs for a LiDAR mounted off the
+//!   axle); directions it did not see take the nearer range at the ends of the gap.
+//! - **Goal:** its old distance and bearing, as a point, seen from the pose now.
+//!
+//! The prediction uses the commands, not what the motors did (actuation noise, control-period
+//! jitter), as a real controller must.
+
+use crate::laser_scan::{self, BeamLayout, LaserScan, SensorSetup, Uncovered};
+use crate::{Pose2, wrap_angle};
+
+/// The robot's pose now in the frame it had when the observation was taken, after driving each
+/// `(v, ω)` of `commands` (oldest first) for `dt` seconds.
+pub fn motion_since(commands: impl IntoIterator<Item = (f64, f64)>, dt: f64) -> Pose2 {
+    let mut p = Pose2::default();
+    for (v, omega) in commands {
+        p = crate::advance(p, v, omega, dt);
+    }
+    p.yaw = wrap_angle(p.yaw);
+    p
+}
+
+/// Writes into `out` the scan `old` (one range per beam of `layout`, m, within `range`, taken at
+/// the robot's pose of then) as the robot's beams would read it after `moved`
+/// ([`motion_since`]).
+///
+/// # Panics
+/// If `old` or `out` is not `layout.beams` long.
+pub fn predict_scan(
+    old: &[f32],
+    layout: BeamLayout,
+    range: [f64; 2],
+    moved: Pose2,
+    out: &mut [f32],
+) {
+    assert_eq!(old.len(), layout.beams, "one range per beam");
+    if moved == Pose2::default() {
+        out.copy_from_slice(old);
+        return;
+    }
+    let w = layout.fov / layout.beams as f64;
+    // Where the robot was, seen from where it is: the old scan's "sensor mounting".
+    let [x, y] = moved.to_local([0.0, 0.0]);
+    let setup = SensorSetup { x, y, yaw: -moved.yaw, uncovered: Uncovered::Nearest };
+    let scan = LaserScan {
+        angle_min: -layout.fov / 2.0 + w / 2.0,
+        angle_increment: w,
+        range_min: range[0],
+        range_max: range[1],
+        ranges: old,
+    };
+    // The scan's description is the robot's own beam layout, which is valid by construction.
+    laser_scan::resample(&scan, &setup, layout, out).expect("the robot's own beam layout");
+    for r in out.iter_mut() {
+        *r = r.clamp(range[0] as f32, range[1] as f32);
+    }
+}
+
+/// The goal observed at `distance` (m) and `bearing` (rad, left positive) from the robot's pose
+/// of then, seen after `moved`: its distance and bearing now.
+pub fn predict_goal(distance: f64, bearing: f64, moved: Pose2) -> (f64, f64) {
+    let g = [distance * bearing.cos(), distance * bearing.sin()];
+    let [x, y] = moved.to_local(g);
+    (x.hypot(y), y.atan2(x))
+}
+
+#[cfg(test)]
+mod tests;
