@@ -184,6 +184,10 @@ async fn a_robot_drives_through_the_service_and_changes_its_footprint() {
     invalid(e, "goal_distance");
     let e = client.act(ActRequest { omega: f64::INFINITY, ..request(2) }).await.unwrap_err();
     invalid(e, "omega");
+    let e = client.act(ActRequest { scan_age_s: 5.0, ..request(2) }).await.unwrap_err();
+    invalid(e, "scan_age_s");
+    // A scan 0.2 s old is carried forward by what the server sent this robot: a command.
+    client.act(ActRequest { scan_age_s: 0.2, ..request(2) }).await.unwrap();
 
     // It picks up cargo: the 0.5 m circle, μ = 2.5; a bad file changes nothing.
     let text = std::fs::read_to_string(repo("footprints/circle-0.5.toml")).unwrap();
@@ -239,7 +243,7 @@ async fn a_robot_drives_through_the_service_and_changes_its_footprint() {
     ] {
         assert!(log.contains(line), "`{line}` not in the log:\n{log}");
     }
-    assert!(log.contains("commands=11"), "10 commands before the change, 1 after:\n{log}");
+    assert!(log.contains("commands=12"), "11 commands before the change, 1 after:\n{log}");
 }
 
 #[tokio::test]

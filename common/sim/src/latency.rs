@@ -72,5 +72,47 @@ pub fn predict_goal(distance: f64, bearing: f64, moved: Pose2) -> (f64, f64) {
     (x.hypot(y), y.atan2(x))
 }
 
+/// The commands a controller sent one robot, with when it sent them: what
+/// [`CommandLog::motion_over`] integrates for a scan that arrives `age` seconds old
+/// (`dvnav serve`'s `scan_age_s`). Times are seconds on any clock that only goes forward; a
+/// command holds from when it was sent until the next one. Before the first command the robot
+/// stood still.
+#[derive(Clone, Debug, Default)]
+pub struct CommandLog {
+    /// `(time, v, ω)`, oldest first.
+    sent: std::collections::VecDeque<(f64, f64, f64)>,
+}
+
+/// How far back (s) a [`CommandLog`] keeps commands: the longest scan age it can carry over.
+pub const MAX_SCAN_AGE_S: f64 = 2.0;
+
+impl CommandLog {
+    /// `(v, ω)` was sent at `t` (s). Commands that ended more than [`MAX_SCAN_AGE_S`] before
+    /// `t` are forgotten.
+    pub fn record(&mut self, t: f64, v: f64, omega: f64) {
+        self.sent.push_back((t, v, omega));
+        // The oldest entry is kept while the next one started within the horizon: it is what
+        // was in force at its start.
+        while self.sent.len() > 1 && self.sent[1].0 <= t - MAX_SCAN_AGE_S {
+            self.sent.pop_front();
+        }
+    }
+
+    /// The robot's pose at `to` in the frame it had at `from` (s, `from ≤ to`), driving each
+    /// command for the part of `[from, to]` it was in force.
+    pub fn motion_over(&self, from: f64, to: f64) -> Pose2 {
+        let mut p = Pose2::default();
+        for (k, &(t, v, omega)) in self.sent.iter().enumerate() {
+            let end = self.sent.get(k + 1).map_or(to, |next| next.0).min(to);
+            let held = end - t.max(from);
+            if held > 0.0 {
+                p = crate::advance(p, v, omega, held);
+            }
+        }
+        p.yaw = wrap_angle(p.yaw);
+        p
+    }
+}
+
 #[cfg(test)]
 mod tests;

@@ -97,6 +97,7 @@ fn request(beams: usize, k: usize, laser: bool, robot: &str) -> pb::ActRequest {
         robot_id: robot.into(),
         expected_footprint_version: 0,
         pose: None,
+        scan_age_s: 0.0,
     }
 }
 

@@ -315,6 +315,7 @@ pub(super) fn robot_input(r: &pb::ActRequest) -> Result<RobotInput<'_>, Status> 
         expected_footprint_version: (r.expected_footprint_version != 0)
             .then_some(r.expected_footprint_version),
         pose: r.pose.as_ref().map(|p| dvnav_sim::Pose2::new(p.x, p.y, p.yaw)),
+        scan_age_s: r.scan_age_s,
     })
 }
 

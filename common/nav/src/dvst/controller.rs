@@ -41,6 +41,7 @@ use super::shared_policy::{Reply, SharedPolicy};
 use super::transfer::{VelocityBounds, transfer_observation, transfer_policy};
 use crate::policy::NavPolicy;
 use dvnav_config::Config;
+use dvnav_sim::latency::{self, CommandLog, MAX_SCAN_AGE_S};
 use dvnav_sim::obs::{ANGULAR_VELOCITY, GOAL_ANGLE, GOAL_DISTANCE, LINEAR_VELOCITY, obs_dim};
 use dvnav_sim::subgoal::SubgoalConfig;
 use dvnav_sim::{Pose2, SpecFileError};
@@ -107,6 +108,10 @@ pub struct RobotInput<'a> {
     /// The robot's pose in its route's frame: needed while it follows a route
     /// ([`DvstController::set_route`]), when the goal fields are not read.
     pub pose: Option<Pose2>,
+    /// How long ago (s) the scan and the goal were measured, 0 to [`MAX_SCAN_AGE_S`]: above 0,
+    /// the controller carries them forward to now by the commands it sent this robot since
+    /// ([`dvnav_sim::latency`]). A route's pose is taken as now.
+    pub scan_age_s: f64,
 }
 
 impl<'a> RobotInput<'a> {
@@ -121,6 +126,7 @@ impl<'a> RobotInput<'a> {
             robot_id: "",
             expected_footprint_version: None,
             pose: None,
+            scan_age_s: 0.0,
         }
     }
 }
@@ -284,6 +290,8 @@ struct Prepared {
     /// the robot.
     route: Option<RouteStatus>,
     shim: Option<(f64, f64)>,
+    /// The commands sent this robot, for latency compensation; the new one joins them.
+    log: Arc<Mutex<CommandLog>>,
 }
 
 /// A meta agent driving many varied robots through DVST, shared by the requests of a service.
@@ -295,6 +303,10 @@ pub struct DvstController {
     robots: Mutex<RobotTable<Arc<FootprintState>>>,
     /// Routes of robots that follow one (`SetRoute`), bounded and expiring like `robots`.
     routes: Mutex<RobotTable<Arc<Mutex<RobotRoute>>>>,
+    /// The commands each robot was sent lately (`scan_age_s`), bounded and expiring like
+    /// `robots`; times are seconds since `clock`.
+    command_logs: Mutex<RobotTable<Arc<Mutex<CommandLog>>>>,
+    clock: Instant,
     /// The subgoal rule's constants: the model's `env.subgoals`, else the defaults.
     subgoals: SubgoalConfig,
     /// The map `SetGoal` plans on (`SetMap`).
@@ -353,6 +365,8 @@ impl DvstController {
             policy: Box::new(SharedPolicy::new(policy)),
             robots: Mutex::new(RobotTable::new(DEFAULT_MAX_ROBOTS, DEFAULT_ROBOT_IDLE)),
             routes: Mutex::new(RobotTable::new(DEFAULT_MAX_ROBOTS, DEFAULT_ROBOT_IDLE)),
+            command_logs: Mutex::new(RobotTable::new(DEFAULT_MAX_ROBOTS, DEFAULT_ROBOT_IDLE)),
+            clock: Instant::now(),
             subgoals: cfg.env.subgoals.clone().unwrap_or_default(),
             map: Mutex::new(None),
             default_robot,
@@ -460,6 +474,12 @@ impl DvstController {
                 current: state.version,
             });
         }
+        let now = Instant::now();
+        let log = self.command_logs.lock().unwrap_or_else(PoisonError::into_inner).touch(
+            input.robot_id,
+            now,
+            || Arc::new(Mutex::new(CommandLog::default())),
+        )?;
         let b = self.beams;
         let mut obs = vec![0.0f32; obs_dim(b)];
         let filled_beams = match input.scan {
@@ -474,19 +494,36 @@ impl DvstController {
                 )?
             }
         };
+        let (mut input_goal_distance, mut input_goal_angle) =
+            (input.goal_distance, input.goal_angle);
+        if input.scan_age_s > 0.0 {
+            let t = now.duration_since(self.clock).as_secs_f64();
+            let moved = log
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .motion_over(t - input.scan_age_s, t);
+            // In the robot's own metres; a 0 m reading stays an obstacle at the body (1 mm),
+            // not the "no return" a driver's 0.0 means.
+            let old: Vec<f32> = obs[..b].iter().map(|r| r.max(1e-3)).collect();
+            let layout = BeamLayout::new(b, self.fov_deg);
+            let range = [1e-3, MAX_RANGE_M];
+            latency::predict_scan(&old, layout, range, moved, &mut obs[..b]);
+            (input_goal_distance, input_goal_angle) =
+                latency::predict_goal(input.goal_distance, input.goal_angle, moved);
+        }
         let route = self.follow_route(input, &state, &obs[..b])?;
         let (goal_distance, goal_angle, arrived, shim) = match &route {
             Some(r) => (r.goal_distance, r.goal_angle, r.arrived, r.shim),
             None => (
-                input.goal_distance,
-                input.goal_angle,
-                input.goal_distance <= state.goal_tolerance,
+                input_goal_distance,
+                input_goal_angle,
+                input_goal_distance <= state.goal_tolerance,
                 None,
             ),
         };
         let status = route.map(|r| r.status);
         if arrived || shim.is_some() {
-            return Ok(Prepared { state, filled_beams, meta_obs: None, route: status, shim });
+            return Ok(Prepared { state, filled_beams, meta_obs: None, route: status, shim, log });
         }
         obs[b + GOAL_DISTANCE] = goal_distance as f32;
         obs[b + GOAL_ANGLE] = wrap_angle(goal_angle) as f32;
@@ -494,7 +531,14 @@ impl DvstController {
         obs[b + ANGULAR_VELOCITY] = input.omega as f32;
         let mut meta_obs = vec![0.0f32; obs.len()];
         transfer_observation(&obs, b, state.mu, Some(self.scan_range), &mut meta_obs);
-        Ok(Prepared { state, filled_beams, meta_obs: Some(meta_obs), route: status, shim: None })
+        Ok(Prepared {
+            state,
+            filled_beams,
+            meta_obs: Some(meta_obs),
+            route: status,
+            shim: None,
+            log,
+        })
     }
 
     /// The robot's route step, if it follows one: the subgoal as its goal, arrival at the
@@ -613,7 +657,7 @@ impl DvstController {
 
     /// The command from the meta agent's answer (`None`: arrived, no question asked).
     fn finish(&self, p: Prepared, reply: Option<Reply>) -> Result<Command, ControllerError> {
-        let Prepared { state, filled_beams, route, shim, .. } = p;
+        let Prepared { state, filled_beams, route, shim, log, .. } = p;
         let (v, omega, arrived) = match (reply, shim) {
             (None, Some((v, omega))) => (v, omega, false),
             (None, None) => (0.0, 0.0, true),
@@ -629,6 +673,8 @@ impl DvstController {
                 (v, omega, false)
             }
         };
+        let t = Instant::now().duration_since(self.clock).as_secs_f64();
+        log.lock().unwrap_or_else(PoisonError::into_inner).record(t, v, omega);
         self.commands.fetch_add(1, Ordering::Relaxed);
         Ok(Command {
             route,
@@ -720,6 +766,13 @@ impl DvstController {
         }
         if let Some(pose) = input.pose {
             check_pose(pose)?;
+        }
+        let age = input.scan_age_s;
+        if !(age.is_finite() && (0.0..=MAX_SCAN_AGE_S).contains(&age)) {
+            return Err(ControllerError::invalid(
+                "scan_age_s",
+                format!("must be an age in [0, {MAX_SCAN_AGE_S}] s, got {age}"),
+            ));
         }
         let d = input.goal_distance;
         if !(d.is_finite() && (0.0..=MAX_RANGE_M).contains(&d)) {

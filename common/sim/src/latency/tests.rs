@@ -78,3 +78,32 @@ fn a_scan_carried_forward_reads_the_scan_taken_now() {
     predict_scan(&old, layout, range, Pose2::default(), &mut carried);
     assert_eq!(carried, old);
 }
+
+#[test]
+fn a_command_log_drives_what_was_in_force_over_the_window() {
+    let mut log = CommandLog::default();
+    // Nothing sent yet: the robot stood still.
+    assert_eq!(log.motion_over(0.0, 1.0), Pose2::default());
+    log.record(10.0, 0.5, 0.0);
+    log.record(10.2, 0.0, 1.0);
+    log.record(10.4, 0.3, 0.0);
+    // The last 0.3 s before 10.5: 0.1 s of turning at 1 rad/s, then 0.1 s at 0.3 m/s.
+    let p = log.motion_over(10.2 + 0.1, 10.5);
+    assert!((p.yaw - 0.1).abs() < 1e-12, "{p:?}");
+    assert!((p.x - 0.03 * 0.1f64.cos()).abs() < 1e-9 && (p.y - 0.03 * 0.1f64.sin()).abs() < 1e-9);
+    // A window reaching before the first command: standing still until it.
+    let q = log.motion_over(9.0, 10.2);
+    assert!((q.x - 0.1).abs() < 1e-12 && q.y.abs() < 1e-12 && q.yaw == 0.0, "{q:?}");
+    // The same as motion_since for whole periods.
+    let (r, whole) =
+        (log.motion_over(10.0, 10.6), motion_since([(0.5, 0.0), (0.0, 1.0), (0.3, 0.0)], 0.2));
+    let near = |a: f64, b: f64| (a - b).abs() < 1e-9;
+    assert!(near(r.x, whole.x) && near(r.y, whole.y) && near(r.yaw, whole.yaw), "{r:?} {whole:?}");
+    // Old commands are forgotten, but the one in force at the horizon is kept.
+    for k in 0..100 {
+        log.record(11.0 + 0.1 * f64::from(k), 0.1, 0.0);
+    }
+    assert!(log.sent.len() <= 22, "{}", log.sent.len());
+    let s = log.motion_over(20.9 - MAX_SCAN_AGE_S, 20.9);
+    assert!((s.x - 0.1 * MAX_SCAN_AGE_S).abs() < 1e-9, "{s:?}");
+}

@@ -397,6 +397,9 @@ fn huge_values_are_refused_as_the_caller_s_not_the_policy_s() {
     assert_eq!(field(RobotInput { v: 1e308, ..ok }), "v");
     assert_eq!(field(RobotInput { omega: -1e10, ..ok }), "omega");
     assert_eq!(field(RobotInput { goal_angle: 1e300, ..ok }), "goal_angle");
+    for age in [-0.1, f64::NAN, MAX_SCAN_AGE_S + 0.1] {
+        assert_eq!(field(RobotInput { scan_age_s: age, ..ok }), "scan_age_s");
+    }
     assert_eq!(field(RobotInput { scan: Scan::Meta(&[1.0, 3e38, 1.0]), ..ok }), "scan[1]");
     let long = "r".repeat(MAX_ROBOT_ID + 1);
     assert_eq!(field(RobotInput { robot_id: &long, ..ok }), "robot_id");
@@ -465,4 +468,30 @@ fn warming_up_runs_the_policy_but_counts_no_command_and_no_robot() {
     assert_eq!(calls.load(Ordering::SeqCst), WARM_UP_PASSES as u64);
     let info = ctl.info("");
     assert_eq!((info.commands, info.robots), (0, 0));
+}
+
+/// `scan_age_s`: a scan and goal measured a while ago are carried forward by the commands this
+/// robot was sent since. The counting policy steers at the goal's bearing, so the command
+/// shows the bearing the controller computed: after 0.25 s of the robot's first command, a
+/// goal observed 0.2 s ago is where that command's last 0.2 s of driving puts it; a robot that
+/// was sent nothing stood still, so its old observation is its present.
+#[test]
+fn an_old_scan_and_goal_are_carried_forward_by_the_commands_sent_since() {
+    let (ctl, _) = counter_controller(&footprint("small-0.15.toml"));
+    let s = [3.0f32; 3];
+    let of = |robot_id, scan_age_s| RobotInput {
+        robot_id,
+        scan_age_s,
+        ..RobotInput::new(Scan::Meta(&s), 2.0, 0.5, 0.0, 0.0)
+    };
+    let first = ctl.act(&of("a", 0.0)).unwrap();
+    assert!(first.v > 0.0 && (first.omega - 0.5).abs() < 1e-6, "{first:?}");
+    std::thread::sleep(Duration::from_millis(250));
+    let carried = ctl.act(&of("a", 0.2)).unwrap();
+    let moved = dvnav_sim::latency::motion_since([(first.v, first.omega)], 0.2);
+    let (_, bearing) = latency::predict_goal(2.0, 0.5, moved);
+    assert!(bearing < 0.45, "the robot turned towards the goal: {bearing}");
+    assert!((carried.omega - bearing).abs() < 1e-5, "{carried:?} against {bearing}");
+    let fresh = ctl.act(&of("b", 0.2)).unwrap();
+    assert!((fresh.omega - 0.5).abs() < 1e-6, "nothing sent, nothing moved: {fresh:?}");
 }
