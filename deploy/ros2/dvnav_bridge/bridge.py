@@ -48,6 +48,7 @@ class BridgeCore:
         token: str | None = None,
         timeouts: conversion.Timeouts = conversion.Timeouts(),
         call_timeout_s: float = 0.2,
+        compensate_latency: bool = True,
     ):
         self.stub = pb2_grpc.ControllerStub(channel)
         self.robot_id = robot_id
@@ -55,6 +56,10 @@ class BridgeCore:
         self.metadata = [("authorization", f"Bearer {token}")] if token else []
         self.timeouts = timeouts
         self.call_timeout_s = call_timeout_s
+        # Send each Act the time the scan has waited since it arrived (up to a control period,
+        # the timer and the scan being out of step), so the server carries it forward by the
+        # commands it sent since (docs/results.md, "Latency compensation").
+        self.compensate_latency = compensate_latency
         self.scan = None
         self.scan_at: float | None = None
         self.odom = None
@@ -167,8 +172,9 @@ class BridgeCore:
         pose = None
         if self.route:
             pose = self.pose if self.pose is not None else (state.x, state.y, state.yaw)
+        age = now - self.scan_at if self.compensate_latency else 0.0
         request = conversion.act_request(
-            pb2, self.scan, state, self.goal, self.robot_id, self.footprint_version, pose
+            pb2, self.scan, state, self.goal, self.robot_id, self.footprint_version, pose, age
         )
         try:
             reply = self.stub.Act(request, metadata=self.metadata, timeout=self.call_timeout_s)

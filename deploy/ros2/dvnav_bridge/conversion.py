@@ -115,11 +115,22 @@ def set_route_request(pb2, robot_id: str, points):
     )
 
 
+MAX_SCAN_AGE_S = 2.0
+
+
 def act_request(
-    pb2, scan, state: RobotState, goal, robot_id: str = "", expected_version: int = 0, pose=None
+    pb2,
+    scan,
+    state: RobotState,
+    goal,
+    robot_id: str = "",
+    expected_version: int = 0,
+    pose=None,
+    scan_age_s: float = 0.0,
 ):
     """One control cycle's ActRequest from the latest scan, odometry state and goal; with a
-    route, `pose` (x, y, yaw in the route's frame) goes with it."""
+    route, `pose` (x, y, yaw in the route's frame) goes with it. `scan_age_s`: how long ago the
+    scan was taken (clamped to the server's 0-2 s), so that the server carries it forward."""
     distance, angle = goal_relative(goal, state)
     extra = {} if pose is None else {"pose": pb2.Pose2D(x=pose[0], y=pose[1], yaw=pose[2])}
     return pb2.ActRequest(
@@ -131,6 +142,7 @@ def act_request(
         omega=state.omega,
         robot_id=robot_id,
         expected_footprint_version=expected_version,
+        scan_age_s=min(max(float(scan_age_s), 0.0), MAX_SCAN_AGE_S),
     )
 
 

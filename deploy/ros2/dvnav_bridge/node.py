@@ -54,7 +54,10 @@ def main(args=None) -> None:
             if footprint_file:
                 with open(footprint_file, encoding="utf-8") as f:
                     footprint = f.read()
-            self.core = BridgeCore(channel, robot_id, footprint, token, timeouts)
+            compensate = self.declare_parameter("compensate_latency", True).value
+            self.core = BridgeCore(
+                channel, robot_id, footprint, token, timeouts, compensate_latency=compensate
+            )
             info = self.core.connect()
             period = info.control_period_s
             self.get_logger().info(

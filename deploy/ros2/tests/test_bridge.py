@@ -42,6 +42,31 @@ def test_drives_stops_when_stale_and_on_arrival(server):
     assert b.step(1.1).stop == "no goal"
 
 
+class _Recorder:
+    """A controller stub that keeps every ActRequest and answers a plain command."""
+
+    def __init__(self, pb2):
+        self.pb2, self.sent = pb2, []
+
+    def Act(self, request, metadata=None, timeout=None):
+        self.sent.append(request)
+        return self.pb2.ActReply(v=0.1, omega=0.0)
+
+
+def test_each_act_says_how_long_the_scan_waited():
+    from dvnav_bridge.proto import pb2
+
+    for compensate, want in [(True, 0.15), (False, 0.0)]:
+        b = BridgeCore(grpc.insecure_channel("127.0.0.1:9"), compensate_latency=compensate)
+        b.stub = _Recorder(pb2)
+        b.on_goal(through_cdr(goal_pose(3.0, 0.2)))
+        b.on_scan(through_cdr(corridor_scan(0.0, y=0.0, yaw=0.0)), now=10.0)
+        b.on_odom(through_cdr(odometry(10.0, 0.0, 0.0, 0.0)), now=10.0)
+        c = b.step(10.15)
+        assert c.stop is None and c.v == pytest.approx(0.1), c
+        assert b.stub.sent[-1].scan_age_s == pytest.approx(want)
+
+
 def test_server_errors_stop_the_robot(server):
     b = core(server)
     b.connect()

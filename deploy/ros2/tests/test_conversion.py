@@ -58,6 +58,10 @@ def test_a_goal_pose_and_an_act_request():
     assert r.goal_angle == pytest.approx(math.atan2(-1.0, 2.0))
     assert (r.v, r.robot_id, r.expected_footprint_version) == (0.2, "tb2", 7)
     assert len(r.laser_scan.ranges) == 1081 and not r.scan
+    assert r.scan_age_s == 0.0
+    # How old the scan is, within the server's bounds.
+    for age, sent in [(0.15, 0.15), (-0.01, 0.0), (7.0, 2.0)]:
+        assert conversion.act_request(pb2, scan, s, g, scan_age_s=age).scan_age_s == sent
 
 
 def test_a_twist_commands_v_and_omega_and_serializes():
