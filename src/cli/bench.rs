@@ -160,6 +160,10 @@ enum BenchWhat {
         /// leg's start), so that the server replans inside that Act.
         #[arg(long, default_value_t = 50)]
         stray_every: usize,
+        /// Every Act says its scan is this old (s, 0 to 2): the server carries it forward by
+        /// the commands it sent that robot (latency compensation) in every part of the bench.
+        #[arg(long, default_value_t = 0.0)]
+        scan_age_s: f64,
         /// Print one JSON object.
         #[arg(long)]
         json: bool,
@@ -480,12 +484,13 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
             seconds,
             route_map,
             stray_every,
+            scan_age_s,
             json,
         } => {
             let repo = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
             let checkpoint = checkpoint.unwrap_or_else(|| repo.join("models/meta-r0.2"));
             let footprint = footprint.unwrap_or_else(|| repo.join("footprints/paper-medium.toml"));
-            let fleet = super::serve::FleetLoad { robots, rate_hz, seconds };
+            let fleet = super::serve::FleetLoad { robots, rate_hz, seconds, scan_age_s };
             // A relative map path names a file of the repository, as the defaults above do.
             let route = (!route_map.is_empty()).then(|| super::serve::RouteLoad {
                 map: match std::path::Path::new(&route_map) {

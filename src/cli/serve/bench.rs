@@ -20,6 +20,9 @@ pub struct FleetLoad {
     pub rate_hz: f64,
     /// How long the fleet drives.
     pub seconds: f64,
+    /// Every Act of the bench (all parts) says its scan is this old (s), so the server carries
+    /// it forward by the commands it sent that robot (`ActRequest.scan_age_s`).
+    pub scan_age_s: f64,
 }
 
 /// What `dvnav bench serve --json` prints: latency of one command (ms), through the gRPC
@@ -27,6 +30,8 @@ pub struct FleetLoad {
 #[derive(serde::Serialize)]
 pub struct ServeBench {
     calls: usize,
+    /// `ActRequest.scan_age_s` of every call.
+    scan_age_s: f64,
     grpc_p50_ms: f64,
     grpc_p99_ms: f64,
     grpc_mean_ms: f64,
@@ -86,7 +91,7 @@ fn hokuyo(k: usize) -> pb::LaserScan {
     }
 }
 
-fn request(beams: usize, k: usize, laser: bool, robot: &str) -> pb::ActRequest {
+fn request(beams: usize, k: usize, laser: bool, robot: &str, age: f64) -> pb::ActRequest {
     pb::ActRequest {
         scan: if laser { Vec::new() } else { ranges(beams, k) },
         laser_scan: laser.then(|| hokuyo(k)),
@@ -97,16 +102,21 @@ fn request(beams: usize, k: usize, laser: bool, robot: &str) -> pb::ActRequest {
         robot_id: robot.into(),
         expected_footprint_version: 0,
         pose: None,
-        scan_age_s: 0.0,
+        scan_age_s: age,
     }
 }
 
 const WARMUP: usize = 50;
 
-fn in_process(ctl: &DvstController, calls: usize, laser: bool) -> anyhow::Result<Latency> {
+fn in_process(
+    ctl: &DvstController,
+    calls: usize,
+    laser: bool,
+    age: f64,
+) -> anyhow::Result<Latency> {
     let mut ms = Vec::with_capacity(calls);
     for k in 0..WARMUP + calls {
-        let r = request(ctl.beams(), k, laser, "bench");
+        let r = request(ctl.beams(), k, laser, "bench", age);
         let t = Instant::now();
         ctl.act(&robot_input(&r).map_err(|e| anyhow::anyhow!("{}", e.message()))?)?;
         if k >= WARMUP {
@@ -139,8 +149,14 @@ pub fn bench(
     let ctl = Arc::new(ctl);
     let info = ctl.info("");
     let beams = info.beams;
-    let local = in_process(&ctl, calls, false)?;
-    let local_laser = in_process(&ctl, calls, true)?;
+    let age = fleet.scan_age_s;
+    anyhow::ensure!(
+        age.is_finite() && (0.0..=dvnav_sim::latency::MAX_SCAN_AGE_S).contains(&age),
+        "--scan-age-s must lie in [0, {}] s, not {age}",
+        dvnav_sim::latency::MAX_SCAN_AGE_S
+    );
+    let local = in_process(&ctl, calls, false, age)?;
+    let local_laser = in_process(&ctl, calls, true, age)?;
     let cargo = std::fs::read_to_string(
         Path::new(env!("CARGO_MANIFEST_DIR")).join("footprints/circle-with-cargo.toml"),
     )?;
@@ -164,7 +180,7 @@ pub fn bench(
         let mut one_at_a_time = async |laser: bool| -> anyhow::Result<Latency> {
             let mut ms = Vec::with_capacity(calls);
             for k in 0..WARMUP + calls {
-                let r = request(beams, k, laser, "bench");
+                let r = request(beams, k, laser, "bench", age);
                 let t = Instant::now();
                 client.act(r).await?;
                 if k >= WARMUP {
@@ -178,7 +194,7 @@ pub fn bench(
         let fleet_ms = drive_fleet(&url, fleet, beams, &cargo).await?;
         let routed = match &route {
             Some(load) => {
-                let act = move |k: usize, id: &str| request(beams, k, true, id);
+                let act = move |k: usize, id: &str| request(beams, k, true, id, age);
                 // The server's robot: the meta robot's 0.2 m scaled by DVST's μ.
                 Some(super::route_bench::drive(&url, load, 0.2 * mu, act).await?)
             }
@@ -193,6 +209,7 @@ pub fn bench(
     let fp = &info.footprint;
     Ok(ServeBench {
         calls,
+        scan_age_s: age,
         grpc_p50_ms: remote.p50,
         grpc_p99_ms: remote.p99,
         grpc_mean_ms: remote.mean,
@@ -237,7 +254,7 @@ async fn drive_fleet(
     beams: usize,
     cargo: &str,
 ) -> anyhow::Result<Vec<f64>> {
-    let period = Duration::from_secs_f64(1.0 / fleet.rate_hz);
+    let (period, age) = (Duration::from_secs_f64(1.0 / fleet.rate_hz), fleet.scan_age_s);
     let until = Instant::now() + Duration::from_secs_f64(fleet.seconds + 1.0);
     let mut robots = tokio::task::JoinSet::new();
     for n in 0..fleet.robots {
@@ -260,7 +277,7 @@ async fn drive_fleet(
             let mut k = n * 1000;
             while Instant::now() < until {
                 tick.tick().await;
-                let mut r = request(beams, k, true, &id);
+                let mut r = request(beams, k, true, &id, age);
                 r.expected_footprint_version = expected;
                 k += 1;
                 let t = Instant::now();
