@@ -392,6 +392,8 @@ impl DvstController {
             RobotTable::new(max_robots, idle);
         *self.routes.lock().unwrap_or_else(PoisonError::into_inner) =
             RobotTable::new(max_robots, idle);
+        *self.command_logs.lock().unwrap_or_else(PoisonError::into_inner) =
+            RobotTable::new(max_robots, idle);
         Ok(self)
     }
 
@@ -494,23 +496,17 @@ impl DvstController {
                 )?
             }
         };
-        let (mut input_goal_distance, mut input_goal_angle) =
-            (input.goal_distance, input.goal_angle);
-        if input.scan_age_s > 0.0 {
+        let (input_goal_distance, input_goal_angle) = if input.scan_age_s > 0.0 {
             let t = now.duration_since(self.clock).as_secs_f64();
             let moved = log
                 .lock()
                 .unwrap_or_else(PoisonError::into_inner)
                 .motion_over(t - input.scan_age_s, t);
-            // In the robot's own metres; a 0 m reading stays an obstacle at the body (1 mm),
-            // not the "no return" a driver's 0.0 means.
-            let old: Vec<f32> = obs[..b].iter().map(|r| r.max(1e-3)).collect();
-            let layout = BeamLayout::new(b, self.fov_deg);
-            let range = [1e-3, MAX_RANGE_M];
-            latency::predict_scan(&old, layout, range, moved, &mut obs[..b]);
-            (input_goal_distance, input_goal_angle) =
-                latency::predict_goal(input.goal_distance, input.goal_angle, moved);
-        }
+            self.carry_forward(&mut obs[..b], moved);
+            latency::predict_goal(input.goal_distance, input.goal_angle, moved)
+        } else {
+            (input.goal_distance, input.goal_angle)
+        };
         let route = self.follow_route(input, &state, &obs[..b])?;
         let (goal_distance, goal_angle, arrived, shim) = match &route {
             Some(r) => (r.goal_distance, r.goal_angle, r.arrived, r.shim),
@@ -539,6 +535,15 @@ impl DvstController {
             shim: None,
             log,
         })
+    }
+
+    /// `scan` (the robot's beams in its own metres) as it reads after the robot `moved`.
+    fn carry_forward(&self, scan: &mut [f32], moved: Pose2) {
+        // A 0 m reading stays an obstacle at the body (1 mm), not the "no return" that a
+        // driver's 0.0 means to the resampling.
+        let old: Vec<f32> = scan.iter().map(|r| r.max(1e-3)).collect();
+        let layout = BeamLayout::new(self.beams, self.fov_deg);
+        latency::predict_scan(&old, layout, [1e-3, MAX_RANGE_M], moved, scan);
     }
 
     /// The robot's route step, if it follows one: the subgoal as its goal, arrival at the

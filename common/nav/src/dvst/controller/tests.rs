@@ -495,3 +495,18 @@ fn an_old_scan_and_goal_are_carried_forward_by_the_commands_sent_since() {
     let fresh = ctl.act(&of("b", 0.2)).unwrap();
     assert!((fresh.omega - 0.5).abs() < 1e-6, "nothing sent, nothing moved: {fresh:?}");
 }
+
+/// Every per-robot table follows the robot limits: with room for more robots than the default
+/// 256, each of them is driven (its command log included).
+#[test]
+fn more_robots_than_the_default_are_driven_when_the_limit_allows() {
+    let (ctl, _) = counter_controller(&footprint("small-0.15.toml"));
+    let ctl = ctl.with_robot_limits(DEFAULT_MAX_ROBOTS + 10, Duration::from_secs(60)).unwrap();
+    let s = [1.0f32; 3];
+    for n in 0..DEFAULT_MAX_ROBOTS + 10 {
+        let id = format!("robot-{n}");
+        let input =
+            RobotInput { robot_id: &id, ..RobotInput::new(Scan::Meta(&s), 2.0, 0.0, 0.0, 0.0) };
+        ctl.act(&input).unwrap_or_else(|e| panic!("robot {n}: {e}"));
+    }
+}
