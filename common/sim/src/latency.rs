@@ -65,11 +65,10 @@ pub fn predict_scan(
 }
 
 /// The goal observed at `distance` (m) and `bearing` (rad, left positive) from the robot's pose
-/// of then, seen after `moved`: its distance and bearing now.
+/// of then, seen after `moved`: its distance and bearing now ((−π, π], as the observation has it).
 pub fn predict_goal(distance: f64, bearing: f64, moved: Pose2) -> (f64, f64) {
     let g = [distance * bearing.cos(), distance * bearing.sin()];
-    let [x, y] = moved.to_local(g);
-    (x.hypot(y), y.atan2(x))
+    (crate::dist(moved.position(), g), moved.bearing_to(g))
 }
 
 /// The commands a controller sent one robot, with when it sent them: what
