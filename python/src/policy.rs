@@ -5,7 +5,11 @@ use dvnav_nav::control::velocity_to_action;
 use dvnav_nav::dvst::{Dvst, VariedRobot};
 use dvnav_nav::policy::{MetaAgent, NavPolicy, read_policy};
 use dvnav_sim::EnvConfig;
-use numpy::{PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
+use dvnav_sim::laser_scan::BeamLayout;
+use dvnav_sim::latency;
+use numpy::{
+    PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods,
+};
 use pyo3::prelude::*;
 use std::path::Path;
 
@@ -74,6 +78,51 @@ impl Policy {
         let flat: Vec<f32> =
             commands.iter().flat_map(|&(v, w)| velocity_to_action(v, w, &self.env)).collect();
         numpy::PyArray1::from_vec(py, flat).reshape([commands.len(), 2])
+    }
+
+    /// The observation `obs` (one row) taken before the robot drove `commands` ((v m/s, ω
+    /// rad/s), oldest first, each held for `dt` s; default the run's control period), as the
+    /// robot reads it now: its scan and goal carried forward by those commands' motion, as `dvnav
+    /// serve` does with `scan_age_s` and the environments with `latency_compensation`. v and ω
+    /// are left as given (the last command is the caller's own, never delayed). The robot's own
+    /// units: in DVST its commands and metres.
+    #[pyo3(signature = (obs, commands, dt=None))]
+    fn carry_forward<'py>(
+        &self,
+        py: Python<'py>,
+        obs: PyReadonlyArray1<'py, f32>,
+        commands: Vec<(f64, f64)>,
+        dt: Option<f64>,
+    ) -> PyResult<Bound<'py, PyArray1<f32>>> {
+        let old = obs.as_slice().map_err(value_error)?;
+        let d = self.policy.obs_dim();
+        if old.len() != d {
+            return Err(value_error(anyhow::anyhow!(
+                "the observation has {} values; this policy takes {d}",
+                old.len()
+            )));
+        }
+        let dt = dt.unwrap_or(self.env.dt);
+        if !(dt.is_finite() && dt > 0.0) {
+            return Err(value_error(anyhow::anyhow!(
+                "dt is {dt}; it must be a positive number of seconds"
+            )));
+        }
+        if let Some((k, c)) =
+            commands.iter().enumerate().find(|(_, (v, w))| !(v.is_finite() && w.is_finite()))
+        {
+            return Err(value_error(anyhow::anyhow!(
+                "commands[{k}] is {c:?}; commands must be finite"
+            )));
+        }
+        let lidar = &self.env.lidar;
+        let layout = BeamLayout::new(lidar.beams, lidar.fov_deg);
+        // The meta robot's range in this robot's metres: what DVST maps onto the meta scan.
+        let range = [lidar.range_min * self.mu, lidar.range_max * self.mu];
+        let moved = latency::motion_since(commands, dt);
+        let mut out = old.to_vec();
+        latency::carry_observation(old, layout, range, moved, &mut out);
+        Ok(PyArray1::from_vec(py, out))
     }
 
     /// Length of one observation.

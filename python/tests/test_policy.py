@@ -133,3 +133,54 @@ def test_a_policy_follows_a_planners_path_to_a_goal_behind_walls():
                 break
     assert followed > 100
     assert reached >= 5, f"{reached} of 6 goals reached along the path"
+
+
+def test_carry_forward_is_the_environments_latency_compensation():
+    import gymnasium
+
+    policy = dvnav.Policy.load(str(MODEL))
+    # Two environments with one cycle of latency, driven alike; one compensates in Rust.
+    kwargs = dict(room="env3", robustness={"latency_steps": 1})
+    delayed = gymnasium.make("dvnav/Nav-v0", **kwargs)
+    compensated = gymnasium.make("dvnav/Nav-v0", latency_compensation=True, **kwargs)
+    assert compensated.unwrapped.env_config["latency_compensation"]
+    rng = np.random.default_rng(7)
+    steps, moved = 0, 0
+    for episode in range(6):
+        d, _ = delayed.reset(seed=40 + episode)
+        c, _ = compensated.reset(seed=40 + episode)
+        for _ in range(40):
+            a = rng.uniform(-1, 1, size=2).astype(np.float32)
+            d, _, te, tr, _ = delayed.step(a)
+            c, *_ = compensated.step(a)
+            assert delayed.unwrapped.pose == pytest.approx(compensated.unwrapped.pose)
+            # The command just sent is the one the delayed scan has not seen.
+            carried = policy.carry_forward(d, [(d[542], d[543])])
+            assert np.allclose(carried, c, atol=1e-4), np.abs(carried - c).max()
+            moved += np.abs(d[:540] - c[:540]).max() > 0.01
+            steps += 1
+            if te or tr:
+                break
+    assert steps >= 40 and moved >= steps // 2, f"the scan moved on {moved} of {steps} steps"
+
+
+def test_carry_forward_with_no_motion_or_bad_input():
+    policy = dvnav.Policy.load(str(MODEL))
+    obs = observations(1)[0]
+    assert np.array_equal(policy.carry_forward(obs, []), obs)
+    assert np.array_equal(policy.carry_forward(obs, [(0.0, 0.0)] * 3), obs)
+    # Driving 0.5 m straight ahead (five cycles at 0.5 m/s) brings the goal 0.5 m closer when
+    # it lies ahead, and what was 2 m dead ahead is 1.5 m away.
+    ahead = obs.copy()
+    ahead[:540] = 2.0
+    ahead[540], ahead[541] = 3.0, 0.0
+    out = policy.carry_forward(ahead, [(0.5, 0.0)] * 5)
+    assert out[540] == pytest.approx(2.5, abs=1e-5) and out[541] == pytest.approx(0.0, abs=1e-6)
+    assert out[269] == pytest.approx(1.5, abs=0.02) and out[270] == pytest.approx(1.5, abs=0.02)
+    for args, says in [
+        ((obs[:100], []), "expected \\(544,\\)"),
+        ((obs, [(float("nan"), 0.0)]), r"commands\[0\]"),
+        ((obs, [(0.1, 0.0)], 0.0), "dt is 0"),
+    ]:
+        with pytest.raises(ValueError, match=says):
+            policy.carry_forward(*args)

@@ -672,14 +672,7 @@ impl NavEnv {
                     let lidar = &self.cfg.lidar;
                     let layout = BeamLayout::new(lidar.beams, lidar.fov_deg);
                     let range = [lidar.range_min, lidar.range_max];
-                    latency::predict_scan(&old[..beams], layout, range, moved, &mut out[..beams]);
-                    let (d, b) = latency::predict_goal(
-                        f64::from(old[beams + obs::GOAL_DISTANCE]),
-                        f64::from(old[beams + obs::GOAL_ANGLE]),
-                        moved,
-                    );
-                    out[beams + obs::GOAL_DISTANCE] = d as f32;
-                    out[beams + obs::GOAL_ANGLE] = b as f32;
+                    latency::carry_observation(old, layout, range, moved, out);
                 }
                 out[beams + obs::LINEAR_VELOCITY] = self.v as f32;
                 out[beams + obs::ANGULAR_VELOCITY] = self.omega as f32;

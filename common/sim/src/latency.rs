@@ -15,7 +15,7 @@
 //! jitter), as a real controller must.
 
 use crate::laser_scan::{self, BeamLayout, LaserScan, SensorSetup, Uncovered};
-use crate::{Pose2, wrap_angle};
+use crate::{Pose2, obs, wrap_angle};
 
 /// The robot's pose now in the frame it had when the observation was taken, after driving each
 /// `(v, ω)` of `commands` (oldest first) for `dt` seconds.
@@ -69,6 +69,31 @@ pub fn predict_scan(
 pub fn predict_goal(distance: f64, bearing: f64, moved: Pose2) -> (f64, f64) {
     let g = [distance * bearing.cos(), distance * bearing.sin()];
     (crate::dist(moved.position(), g), moved.bearing_to(g))
+}
+
+/// Writes into `out` the observation `old` ([`crate::obs`]'s layout: `layout.beams` ranges,
+/// then the goal's distance and bearing, v, ω, …) as the robot reads it after `moved`: its scan
+/// by [`predict_scan`], its goal by [`predict_goal`]. The entries after the goal are left as
+/// `out` has them (the last command is the controller's own, never delayed).
+///
+/// # Panics
+/// If `old` or `out` is shorter than the scan and the goal.
+pub fn carry_observation(
+    old: &[f32],
+    layout: BeamLayout,
+    range: [f64; 2],
+    moved: Pose2,
+    out: &mut [f32],
+) {
+    let b = layout.beams;
+    predict_scan(&old[..b], layout, range, moved, &mut out[..b]);
+    let (d, bearing) = predict_goal(
+        f64::from(old[b + obs::GOAL_DISTANCE]),
+        f64::from(old[b + obs::GOAL_ANGLE]),
+        moved,
+    );
+    out[b + obs::GOAL_DISTANCE] = d as f32;
+    out[b + obs::GOAL_ANGLE] = bearing as f32;
 }
 
 /// The commands a controller sent one robot, with when it sent them: what
