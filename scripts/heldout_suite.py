@@ -109,9 +109,16 @@ def main():
                    help="noisy suites: carry the delayed observation forward by the commands sent "
                         "since (dvnav eval --latency-compensation), as a controller that knows its "
                         "sensors' delay would")
+    p.add_argument("--no-latency-compensation", action="store_true",
+                   help="noisy suites: no compensation, even for a checkpoint trained with "
+                        "env.latency_compensation (dvnav eval --no-latency-compensation)")
     a = p.parse_args()
+    if a.latency_compensation and a.no_latency_compensation:
+        p.error("--latency-compensation and --no-latency-compensation contradict each other")
     if a.latency_compensation:
         NOISE["noisy"] = NOISE["noisy"] + ["--latency-compensation"]
+    if a.no_latency_compensation:
+        NOISE["noisy"] = NOISE["noisy"] + ["--no-latency-compensation"]
     if a.margin is not None and not a.margin >= 0.0:
         p.error(f"--margin must be a length of at least 0 m, not {a.margin}")
     margin = [] if a.margin is None else ["--margin", str(a.margin)]

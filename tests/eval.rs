@@ -361,6 +361,43 @@ fn the_rotation_shim_flags_override_the_checkpoints_setting() {
     assert!(e.contains("--rotation-shim") && e.contains("--no-rotation-shim"), "{e}");
 }
 
+/// An agent trained with `env.latency_compensation` is evaluated with it; `--latency-compensation`
+/// turns it on for any checkpoint and `--no-latency-compensation` off for any.
+#[test]
+fn the_latency_compensation_flags_override_the_checkpoints_setting() {
+    let dir = tempfile::tempdir().unwrap();
+    let with = |on: bool| {
+        let mut cfg = tiny_config();
+        cfg.env.latency_compensation = on;
+        let ckpt = dir.path().join(format!("compensation-{on}"));
+        write_checkpoint(&ckpt, &cfg);
+        ckpt.to_str().unwrap().to_string()
+    };
+    let (off, on) = (with(false), with(true));
+    let run = |ck: &str, flag: Option<&str>| {
+        let mut args =
+            vec!["--checkpoint", ck, "--room", "env3", "--episodes", "8", "--latency", "1"];
+        args.extend(flag);
+        args.push("--json");
+        json(&eval(&args))[0].clone()
+    };
+    let forced = run(&off, Some("--latency-compensation"));
+    assert_eq!(forced, run(&on, None), "the flag drives as a config with compensation");
+    assert_ne!(forced, run(&off, None), "compensation changes the episodes");
+    assert_eq!(run(&on, Some("--no-latency-compensation")), run(&off, None));
+    let o = eval(&[
+        "--checkpoint",
+        &on,
+        "--latency",
+        "1",
+        "--latency-compensation",
+        "--no-latency-compensation",
+    ]);
+    assert!(!o.status.success());
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(e.contains("--latency-compensation") && e.contains("--no-latency-compensation"), "{e}");
+}
+
 /// `dvnav train` evaluates every `learner.eval_every_updates` updates: rows per curriculum room
 /// in `eval.csv`, the route legs in `mcap/eval/`, a line per room in the learner's log.
 #[test]

@@ -99,6 +99,10 @@ pub struct EvalArgs {
     /// sensors' delay would.
     #[arg(long)]
     pub latency_compensation: bool,
+    /// With --latency: no compensation, whatever the checkpoint's config says (an agent trained
+    /// with `env.latency_compensation` is measured with it by default).
+    #[arg(long, conflicts_with = "latency_compensation")]
+    pub no_latency_compensation: bool,
     /// Gaussian actuation noise σ on the executed command: `V,W` (m/s, rad/s).
     #[arg(long, value_name = "V,W", value_parser = parse_pair)]
     pub actuation_noise: Option<[f64; 2]>,
@@ -363,7 +367,8 @@ fn eval_env(args: &EvalArgs, cfg: &Config) -> anyhow::Result<dvnav_config::EnvCo
         "--latency-compensation carries a delayed observation forward: it needs --latency K \
          (K ≥ 1 cycles)"
     );
-    env.latency_compensation |= args.latency_compensation;
+    env.latency_compensation =
+        (env.latency_compensation || args.latency_compensation) && !args.no_latency_compensation;
     anyhow::ensure!(
         args.noise_std.is_finite() && args.noise_std >= 0.0,
         "--noise-std must be a σ of at least 0 m, not {}",
