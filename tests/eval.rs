@@ -243,6 +243,8 @@ fn bad_input_fails_with_a_clear_message() {
     assert!(e.contains("--time-limit-factor") && e.contains("≥ 0"), "{e}");
     let e = stderr(&eval(&["--checkpoint", ok, "--latency-compensation"]));
     assert!(e.contains("--latency-compensation") && e.contains("--latency K"), "{e}");
+    let e = stderr(&eval(&["--checkpoint", ok, "--safety-horizon=-0.5"]));
+    assert!(e.contains("--safety-horizon") && e.contains("at least 0 s"), "{e}");
     let e = stderr(&eval(&["--checkpoint", ck, "--tasks", "medium"]));
     assert!(e.contains("--tasks") && e.contains("long"), "{e}");
 }

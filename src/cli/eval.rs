@@ -103,6 +103,12 @@ pub struct EvalArgs {
     /// with `env.latency_compensation` is measured with it by default).
     #[arg(long, conflicts_with = "latency_compensation")]
     pub no_latency_compensation: bool,
+    /// A collision monitor on the policy's commands (`dvnav_sim::safety`, Nav2's Collision
+    /// Monitor in "approach" mode): each command's v is scaled down so that the robot, driving it
+    /// for this many seconds, would not reach a return of its observed scan; ω is the policy's.
+    /// 0: off.
+    #[arg(long, value_name = "S", default_value_t = 0.0)]
+    pub safety_horizon: f64,
     /// Gaussian actuation noise σ on the executed command: `V,W` (m/s, rad/s).
     #[arg(long, value_name = "V,W", value_parser = parse_pair)]
     pub actuation_noise: Option<[f64; 2]>,
@@ -662,7 +668,16 @@ pub fn run(args: EvalArgs) -> anyhow::Result<ExitCode> {
         if args.scenario == Scenario::Training { "routes and episodes" } else { "robots" },
         args.checkpoint.display()
     );
-    let opts = RunOptions { window: args.batch, samples: logger.is_some() };
+    anyhow::ensure!(
+        args.safety_horizon.is_finite() && args.safety_horizon >= 0.0,
+        "--safety-horizon must be a time of at least 0 s, not {}",
+        args.safety_horizon
+    );
+    let opts = RunOptions {
+        window: args.batch,
+        samples: logger.is_some(),
+        safety_horizon_s: args.safety_horizon,
+    };
     let env_cfg = eval_env(&args, &cfg)?;
     if let Some(s) = &env_cfg.sensor {
         check_sensor_mount(s, &tasks, cfg.env.robot_radius)?;

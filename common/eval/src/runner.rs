@@ -11,6 +11,8 @@
 use super::episode::{EpisodeResult, Recorder, StepSample};
 use dvnav_nav::policy::NavPolicy;
 use dvnav_sim::Outcome;
+use dvnav_sim::laser_scan::BeamLayout;
+use dvnav_sim::safety;
 use dvnav_sim::{NavEnv, Pose2};
 use rayon::prelude::*;
 use std::collections::VecDeque;
@@ -54,18 +56,22 @@ pub struct Job {
 }
 
 /// Options of [`run_jobs`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RunOptions {
     /// Jobs running at once: the largest batch a policy sees. 64 keeps a batch's forward pass
     /// efficient while bounding the memory of kept steps.
     pub window: usize,
     /// Keep every step's scan and command ([`StepSample`]) for episode logs.
     pub samples: bool,
+    /// The collision monitor's horizon (s, [`dvnav_sim::safety`]): each policy command's v is
+    /// scaled down so that the meta robot would not reach a return of its observed scan within
+    /// it. 0: off.
+    pub safety_horizon_s: f64,
 }
 
 impl Default for RunOptions {
     fn default() -> Self {
-        Self { window: 64, samples: false }
+        Self { window: 64, samples: false, safety_horizon_s: 0.0 }
     }
 }
 
@@ -182,8 +188,25 @@ pub fn run_jobs(
                 out.len(),
                 group.len()
             );
-            for (&k, c) in group.iter().zip(out) {
+            for (n, (&k, c)) in group.iter().zip(out).enumerate() {
                 commands[k] = c;
+                if opts.safety_horizon_s > 0.0 {
+                    let env = &slots[k].env;
+                    let cfg = env.config();
+                    let layout = BeamLayout::new(cfg.lidar.beams, cfg.lidar.fov_deg);
+                    let scan = &obs[n * d..n * d + layout.beams];
+                    // The observation's frame: the meta robot's when the environment runs DVST.
+                    let radius = env.robot_radius() / env.dvst_scale();
+                    let v = safety::safe_speed(
+                        scan,
+                        layout,
+                        cfg.lidar.range_max,
+                        radius,
+                        c,
+                        opts.safety_horizon_s,
+                    );
+                    commands[k].0 = v;
+                }
             }
         }
         // The rotation shim (env.subgoals) holds a robot that has just been given a plan.
@@ -316,17 +339,22 @@ mod tests {
         );
     }
 
-    #[test]
-    fn a_route_stops_at_its_first_failed_leg() {
-        let cfg = Config::default();
-        // A wall between the first and the second goal: PID drives straight into it.
+    /// An 8 m room with a wall across x = 1.5 (faces at 1.4 and 1.6), 4 m long.
+    fn walled_room() -> Arc<Room> {
         let mut spec = RoomSpec::empty("walled", 8.0);
         spec.obstacles.push(dvnav_sim::ObstacleSpec::Box {
             center: [1.5, 0.0],
             half_extents: [0.1, 2.0],
             angle: 0.0,
         });
-        let room = Arc::new(Room::new(spec));
+        Arc::new(Room::new(spec))
+    }
+
+    #[test]
+    fn a_route_stops_at_its_first_failed_leg() {
+        let cfg = Config::default();
+        // A wall between the first and the second goal: PID drives straight into it.
+        let room = walled_room();
         let job = Job {
             env: NavEnv::new(room, &cfg.env, 3),
             plan: Plan::Route {
@@ -340,6 +368,36 @@ mod tests {
             run_jobs(vec![job], &mut [&mut p], RunOptions::default(), &mut |_| Ok(())).unwrap();
         let outcomes: Vec<_> = out[0].iter().map(|l| l.outcome).collect();
         assert_eq!(outcomes, vec![Outcome::Success, Outcome::Collision]);
+    }
+
+    /// The collision monitor: PID drives straight at a wall between it and its goal; with the
+    /// monitor it approaches and stops short (a timeout) instead of hitting it.
+    #[test]
+    fn the_collision_monitor_turns_a_drive_into_a_wall_into_a_stop_before_it() {
+        let mut cfg = Config::default();
+        cfg.env.max_steps = 150;
+        let room = walled_room();
+        let run = |horizon: f64| {
+            let job = Job {
+                env: NavEnv::new(room.clone(), &cfg.env, 3),
+                plan: Plan::Route { start: Pose2::new(0.0, 0.0, 0.0), goals: vec![[3.0, 0.0]] },
+                policy: 0,
+            };
+            let opts = RunOptions { safety_horizon_s: horizon, ..Default::default() };
+            let mut p = pid(&cfg);
+            let mut end = None;
+            let out = run_jobs(vec![job], &mut [&mut p], opts, &mut |d| {
+                end = Some(d.env.pose());
+                Ok(())
+            })
+            .unwrap();
+            (out[0][0].outcome, end.unwrap())
+        };
+        assert_eq!(run(0.0).0, Outcome::Collision);
+        let (outcome, at) = run(0.6);
+        assert_eq!(outcome, Outcome::Timeout);
+        // The wall's face is at x = 1.4; the 0.2 m robot stops within a few centimetres of it.
+        assert!(at.x > 1.1 && at.x < 1.2, "stopped at x = {}", at.x);
     }
 
     #[test]
@@ -356,7 +414,7 @@ mod tests {
                 .collect()
         };
         let mut batched = Counting { inner: pid(&cfg), calls: 0, largest: 0 };
-        let opts = RunOptions { window: 4, samples: true };
+        let opts = RunOptions { window: 4, samples: true, ..Default::default() };
         let mut logged = 0;
         let a = run_jobs(jobs(10), &mut [&mut batched], opts, &mut |d| {
             let s = d.samples.unwrap();
@@ -371,7 +429,7 @@ mod tests {
         let b = run_jobs(
             jobs(10),
             &mut [&mut single],
-            RunOptions { window: 1, samples: false },
+            RunOptions { window: 1, samples: false, ..Default::default() },
             &mut |_| Ok(()),
         )
         .unwrap();

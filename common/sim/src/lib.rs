@@ -69,6 +69,7 @@ pub mod robustness;
 mod room;
 pub mod room_file;
 pub mod room_set;
+pub mod safety;
 pub mod sensor;
 pub mod spec;
 pub mod subgoal;
