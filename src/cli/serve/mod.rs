@@ -65,6 +65,12 @@ pub struct ServeArgs {
     /// deterministic.
     #[arg(long)]
     batched_inference: bool,
+    /// A collision monitor on every command: v is scaled down (ω kept) so that the robot,
+    /// driving the command for this many seconds, would not touch a return of its scan
+    /// (`dvnav eval --safety-horizon`; 0.6 measured best, docs/results.md "A collision
+    /// monitor"). 0: off, the agent's own commands.
+    #[arg(long, value_name = "S", default_value_t = 0.0)]
+    safety_horizon: f64,
 }
 
 /// Runs `dvnav serve` until Ctrl-C or SIGTERM.
@@ -78,7 +84,9 @@ pub fn run(args: ServeArgs) -> anyhow::Result<ExitCode> {
     let ctl = load_controller(&args.checkpoint, &args.footprint, args.margin)?
         .with_robot_limits(args.max_robots, Duration::from_secs_f64(args.robot_idle_s))
         .map_err(|e| anyhow::anyhow!("--max-robots / --robot-idle-s: {e:#}"))?
-        .with_batched_inference(args.batched_inference);
+        .with_batched_inference(args.batched_inference)
+        .with_safety_horizon(args.safety_horizon)
+        .map_err(|e| anyhow::anyhow!("--safety-horizon: {e:#}"))?;
     let warm = std::time::Instant::now();
     ctl.warm_up().map_err(|e| {
         anyhow::anyhow!("{}: the policy failed its first pass: {e:#}", args.checkpoint.display())

@@ -43,6 +43,7 @@ use crate::policy::NavPolicy;
 use dvnav_config::Config;
 use dvnav_sim::latency::{self, CommandLog, MAX_SCAN_AGE_S};
 use dvnav_sim::obs::{ANGULAR_VELOCITY, GOAL_ANGLE, GOAL_DISTANCE, LINEAR_VELOCITY, obs_dim};
+use dvnav_sim::safety;
 use dvnav_sim::subgoal::SubgoalConfig;
 use dvnav_sim::{Pose2, SpecFileError};
 use std::f64::consts::{PI, TAU};
@@ -292,6 +293,8 @@ struct Prepared {
     shim: Option<(f64, f64)>,
     /// The commands sent this robot, for latency compensation; the new one joins them.
     log: Arc<Mutex<CommandLog>>,
+    /// The meta scan, kept for the collision monitor when it is on.
+    monitor_scan: Option<Vec<f32>>,
 }
 
 /// A meta agent driving many varied robots through DVST, shared by the requests of a service.
@@ -327,6 +330,8 @@ pub struct DvstController {
     margin: Option<f64>,
     model: ModelId,
     commands: AtomicU64,
+    /// The collision monitor's horizon (s; 0: off), [`DvstController::with_safety_horizon`].
+    safety_horizon_s: f64,
 }
 
 impl DvstController {
@@ -381,6 +386,7 @@ impl DvstController {
             margin,
             model,
             commands: AtomicU64::new(0),
+            safety_horizon_s: 0.0,
         })
     }
 
@@ -394,6 +400,19 @@ impl DvstController {
             RobotTable::new(max_robots, idle);
         *self.command_logs.lock().unwrap_or_else(PoisonError::into_inner) =
             RobotTable::new(max_robots, idle);
+        Ok(self)
+    }
+
+    /// A collision monitor on every command ([`dvnav_sim::safety`], as `dvnav eval
+    /// --safety-horizon`): the policy's v is scaled down so that the meta robot's disc (its
+    /// bounding disc for a rectangle), driving the command for `horizon_s` seconds, would not
+    /// reach a return of the meta scan; ω is the policy's. 0 turns it off.
+    pub fn with_safety_horizon(mut self, horizon_s: f64) -> anyhow::Result<Self> {
+        anyhow::ensure!(
+            horizon_s.is_finite() && horizon_s >= 0.0,
+            "the collision monitor's horizon must be a time of at least 0 s, not {horizon_s}"
+        );
+        self.safety_horizon_s = horizon_s;
         Ok(self)
     }
 
@@ -519,7 +538,15 @@ impl DvstController {
         };
         let status = route.map(|r| r.status);
         if arrived || shim.is_some() {
-            return Ok(Prepared { state, filled_beams, meta_obs: None, route: status, shim, log });
+            return Ok(Prepared {
+                state,
+                filled_beams,
+                meta_obs: None,
+                route: status,
+                shim,
+                log,
+                monitor_scan: None,
+            });
         }
         obs[b + GOAL_DISTANCE] = goal_distance as f32;
         obs[b + GOAL_ANGLE] = wrap_angle(goal_angle) as f32;
@@ -527,6 +554,7 @@ impl DvstController {
         obs[b + ANGULAR_VELOCITY] = input.omega as f32;
         let mut meta_obs = vec![0.0f32; obs.len()];
         transfer_observation(&obs, b, state.mu, Some(self.scan_range), &mut meta_obs);
+        let monitor_scan = (self.safety_horizon_s > 0.0).then(|| meta_obs[..b].to_vec());
         Ok(Prepared {
             state,
             filled_beams,
@@ -534,6 +562,7 @@ impl DvstController {
             route: status,
             shim: None,
             log,
+            monitor_scan,
         })
     }
 
@@ -662,7 +691,7 @@ impl DvstController {
 
     /// The command from the meta agent's answer (`None`: arrived, no question asked).
     fn finish(&self, p: Prepared, reply: Option<Reply>) -> Result<Command, ControllerError> {
-        let Prepared { state, filled_beams, route, shim, log, .. } = p;
+        let Prepared { state, filled_beams, route, shim, log, monitor_scan, .. } = p;
         let (v, omega, arrived) = match (reply, shim) {
             (None, Some((v, omega))) => (v, omega, false),
             (None, None) => (0.0, 0.0, true),
@@ -674,6 +703,17 @@ impl DvstController {
                         "the meta policy answered a non-finite command ({v_m}, {omega_m})"
                     )));
                 }
+                let v_m = match &monitor_scan {
+                    Some(scan) => safety::safe_speed(
+                        scan,
+                        BeamLayout::new(self.beams, self.fov_deg),
+                        self.scan_range[1],
+                        self.meta.bounding_radius(),
+                        (v_m, omega_m),
+                        self.safety_horizon_s,
+                    ),
+                    None => v_m,
+                };
                 let (v, omega) = transfer_policy(v_m, omega_m, state.mu, state.bounds);
                 (v, omega, false)
             }

@@ -510,3 +510,26 @@ fn more_robots_than_the_default_are_driven_when_the_limit_allows() {
         ctl.act(&input).unwrap_or_else(|e| panic!("robot {n}: {e}"));
     }
 }
+
+/// The collision monitor (`with_safety_horizon`): with an obstacle 0.35 m ahead of a 0.2 m
+/// robot, the policy's 0.4 m/s becomes what stops the disc (and its 1 % margin) short of it
+/// within the horizon; ω is kept, open space is untouched, and a bad horizon is refused.
+#[test]
+fn the_collision_monitor_slows_a_robot_short_of_an_obstacle_ahead() {
+    let circle = "[[parts]]\nshape = \"circle\"\ncenter = [0, 0]\nradius = 0.2\n";
+    let blocked = [10.0f32, 0.35, 10.0];
+    let open = [10.0f32; 3];
+    let input = |s| RobotInput::new(Scan::Meta(s), 2.0, 0.0, 0.0, 0.0);
+    let (plain, _) = counter_controller(circle);
+    assert_eq!(plain.act(&input(&blocked)).unwrap().v, 0.4);
+    let (ctl, _) = counter_controller(circle);
+    let ctl = ctl.with_safety_horizon(1.0).unwrap();
+    let c = ctl.act(&input(&blocked)).unwrap();
+    assert!((c.v - 0.148).abs() < 0.005 && c.omega == 0.0, "{c:?}");
+    assert_eq!(ctl.act(&input(&open)).unwrap().v, 0.4);
+    for bad in [-1.0, f64::NAN] {
+        let (ctl, _) = counter_controller(circle);
+        let e = ctl.with_safety_horizon(bad).unwrap_err().to_string();
+        assert!(e.contains("horizon"), "{e}");
+    }
+}
