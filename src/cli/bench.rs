@@ -164,6 +164,10 @@ enum BenchWhat {
         /// the commands it sent that robot (latency compensation) in every part of the bench.
         #[arg(long, default_value_t = 0.0)]
         scan_age_s: f64,
+        /// The server runs the collision monitor with this horizon (s; `dvnav serve
+        /// --safety-horizon`) in every part of the bench. 0: off.
+        #[arg(long, value_name = "S", default_value_t = 0.0)]
+        safety_horizon: f64,
         /// Print one JSON object.
         #[arg(long)]
         json: bool,
@@ -485,12 +489,19 @@ pub fn run(args: BenchArgs) -> anyhow::Result<ExitCode> {
             route_map,
             stray_every,
             scan_age_s,
+            safety_horizon,
             json,
         } => {
             let repo = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
             let checkpoint = checkpoint.unwrap_or_else(|| repo.join("models/meta-r0.2"));
             let footprint = footprint.unwrap_or_else(|| repo.join("footprints/paper-medium.toml"));
-            let fleet = super::serve::FleetLoad { robots, rate_hz, seconds, scan_age_s };
+            let fleet = super::serve::FleetLoad {
+                robots,
+                rate_hz,
+                seconds,
+                scan_age_s,
+                safety_horizon_s: safety_horizon,
+            };
             // A relative map path names a file of the repository, as the defaults above do.
             let route = (!route_map.is_empty()).then(|| super::serve::RouteLoad {
                 map: match std::path::Path::new(&route_map) {

@@ -23,6 +23,8 @@ pub struct FleetLoad {
     /// Every Act of the bench (all parts) says its scan is this old (s), so the server carries
     /// it forward by the commands it sent that robot (`ActRequest.scan_age_s`).
     pub scan_age_s: f64,
+    /// The server's collision monitor horizon (s; 0: off).
+    pub safety_horizon_s: f64,
 }
 
 /// What `dvnav bench serve --json` prints: latency of one command (ms), through the gRPC
@@ -32,6 +34,8 @@ pub struct ServeBench {
     calls: usize,
     /// `ActRequest.scan_age_s` of every call.
     scan_age_s: f64,
+    /// The server's collision monitor horizon (s; 0: off).
+    safety_horizon_s: f64,
     grpc_p50_ms: f64,
     grpc_p99_ms: f64,
     grpc_mean_ms: f64,
@@ -146,6 +150,9 @@ pub fn bench(
         fleet.robots + route.as_ref().map_or(0, |r| r.robots) + 1,
         Duration::from_secs(600),
     )?;
+    let ctl = ctl
+        .with_safety_horizon(fleet.safety_horizon_s)
+        .map_err(|e| anyhow::anyhow!("--safety-horizon: {e:#}"))?;
     let ctl = Arc::new(ctl);
     let info = ctl.info("");
     let beams = info.beams;
@@ -210,6 +217,7 @@ pub fn bench(
     Ok(ServeBench {
         calls,
         scan_age_s: age,
+        safety_horizon_s: fleet.safety_horizon_s,
         grpc_p50_ms: remote.p50,
         grpc_p99_ms: remote.p99,
         grpc_mean_ms: remote.mean,
