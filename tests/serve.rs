@@ -671,18 +671,20 @@ async fn the_server_plans_on_a_map_for_a_robots_goal() {
 }
 
 /// `dvnav bench serve`'s routed fleet really routes: robots on the Willow Garage map follow
-/// planned legs, the server replans for the ones that stray, and the figures say so.
+/// planned legs, the server replans for the ones that stray, and the figures say so; with the
+/// collision monitor on, as `dvnav serve --safety-horizon` runs it.
 #[test]
 fn the_serve_bench_routes_and_replans_its_robots() {
     let out = Command::new(env!("CARGO_BIN_EXE_dvnav"))
         .args(["bench", "serve", "--calls", "100", "--robots", "2", "--seconds", "2"])
-        .args(["--stray-every", "5", "--json"])
+        .args(["--stray-every", "5", "--safety-horizon", "0.6", "--json"])
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(r["route_map"], "maps/willow.yaml", "{r}");
+    assert_eq!(r["safety_horizon_s"], 0.6, "{r}");
     let calls = r["route_calls"].as_u64().unwrap();
     // 2 robots at 10 Hz for 2 timed seconds, a stray every 5th call.
     assert!(calls >= 20, "{r}");
