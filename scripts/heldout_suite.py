@@ -25,6 +25,8 @@
   (`dvnav eval --margin`: the scaled robot covers the robot inflated by M, the robot of radius
   0.2 m included). The kept checks keep the paper's μ = R / 0.2 m: the gate test is defined by
   it (a 3 cm margin already makes R = 0.25 m judge the gate too narrow, docs/results.md).
+- `--safety-horizon S`: every suite with the collision monitor on (`dvnav eval
+  --safety-horizon`; docs/results.md "A collision monitor"); the kept checks stay the agent's own.
 
 It only runs `dvnav eval` and adds up its JSON rows, so every figure can be re-run by hand
 with the command it prints. Rates are pooled over episodes; the reversal rate and mean |Δω|
@@ -103,6 +105,8 @@ def main():
     p.add_argument("--out", help="write the pooled figures as JSON here")
     p.add_argument("--margin", type=float, default=None,
                    help="DVST safety margin (m) for every suite but the kept checks (default: dvnav eval's, 0 m)")
+    p.add_argument("--safety-horizon", type=float, default=0.0,
+                   help="collision monitor horizon (s) for every suite but the kept checks (0: off)")
     p.add_argument("--no-kept", dest="kept", action="store_false",
                    help="skip the kept checks (gate test, Env_3, dynamic scenario)")
     p.add_argument("--latency-compensation", action="store_true",
@@ -122,6 +126,10 @@ def main():
     if a.margin is not None and not a.margin >= 0.0:
         p.error(f"--margin must be a length of at least 0 m, not {a.margin}")
     margin = [] if a.margin is None else ["--margin", str(a.margin)]
+    if not a.safety_horizon >= 0.0:
+        p.error(f"--safety-horizon must be a time of at least 0 s, not {a.safety_horizon}")
+    if a.safety_horizon > 0.0:
+        margin += ["--safety-horizon", str(a.safety_horizon)]
 
     started = time.time()
     suites = []
@@ -193,7 +201,8 @@ def main():
     if a.out:
         os.makedirs(os.path.dirname(a.out) or ".", exist_ok=True)
         with open(a.out, "w") as f:
-            json.dump({"checkpoint": a.checkpoint, "margin": a.margin, "suites": suites, "kept": kept}, f, indent=1)
+            json.dump({"checkpoint": a.checkpoint, "margin": a.margin, "safety_horizon_s": a.safety_horizon,
+                       "suites": suites, "kept": kept}, f, indent=1)
 
 
 def run_kept(dvnav, checkpoint):
