@@ -142,8 +142,13 @@ impl BeamLayout {
     /// Each beam's centre angle relative to the heading (rad), right to left, as
     /// [`crate::Lidar`] casts them.
     pub fn angles(&self) -> Vec<f64> {
+        (0..self.beams).map(|i| self.angle(i)).collect()
+    }
+
+    /// Beam `i`'s centre angle relative to the heading (rad), one of [`BeamLayout::angles`].
+    pub fn angle(&self, i: usize) -> f64 {
         let (start, w) = self.grid();
-        (0..self.beams).map(|i| start + w * (i as f64 + 0.5)).collect()
+        start + w * (i as f64 + 0.5)
     }
 
     /// Whether the beams go all the way round (the last one neighbours the first).

@@ -46,13 +46,12 @@ pub fn predict_scan(
         out.copy_from_slice(old);
         return;
     }
-    let w = layout.fov / layout.beams as f64;
     // Where the robot was, seen from where it is: the old scan's "sensor mounting".
     let [x, y] = moved.to_local([0.0, 0.0]);
     let setup = SensorSetup { x, y, yaw: -moved.yaw, uncovered: Uncovered::Nearest };
     let scan = LaserScan {
-        angle_min: -layout.fov / 2.0 + w / 2.0,
-        angle_increment: w,
+        angle_min: layout.angle(0),
+        angle_increment: layout.fov / layout.beams as f64,
         range_min: range[0],
         range_max: range[1],
         ranges: old,

@@ -4,9 +4,9 @@
 //! so the robot approaches an obstacle ever slower instead of clipping it, and still turns as
 //! the policy asks (a disc turning in place sweeps nothing).
 //!
-//! Why: a DVST robot of 0.6 m in dense clutter cuts the bend round a small obstacle on its way
-//! to a subgoal (docs/results.md, "Through a whole building"): the agent steers right, but too
-//! late for a body three times the meta robot's.
+//! Why: a DVST robot of 0.6 m in dense clutter clips a small obstacle on the bend round it, or
+//! creeps along it a few millimetres off until it touches (docs/results.md, "A collision
+//! monitor"); with the monitor it stops short, turns, and the route replans.
 //!
 //! Everything is in one frame: the robot at the origin facing +x, ranges and radius in the same
 //! metres, v in those metres per second (the meta robot's frame in evaluation and in `dvnav
@@ -47,15 +47,14 @@ pub fn safe_speed(
     }
     let radius = radius * (1.0 + MARGIN_SHARE);
     let reach = radius + v * horizon_s;
-    let w = layout.fov / layout.beams as f64;
     let near: Vec<([f64; 2], f64)> = scan
         .iter()
         .enumerate()
         .filter_map(|(i, &r)| {
             let r = f64::from(r);
             (r.is_finite() && r < range_max - 1e-6 && r < reach).then(|| {
-                let a = -layout.fov / 2.0 + (i as f64 + 0.5) * w;
-                ([r * a.cos(), r * a.sin()], r)
+                let (sin, cos) = layout.angle(i).sin_cos();
+                ([r * cos, r * sin], r)
             })
         })
         .collect();
@@ -91,12 +90,10 @@ mod tests {
 
     /// A straight wall across the way `ahead` m in front of the centre.
     fn wall_ahead(ahead: f64) -> Vec<f32> {
-        let w = LAYOUT.fov / LAYOUT.beams as f64;
-        (0..LAYOUT.beams)
-            .map(|i| {
-                let a = -LAYOUT.fov / 2.0 + (i as f64 + 0.5) * w;
-                if a.cos() > 1e-6 { (ahead / a.cos()).min(10.0) as f32 } else { 10.0 }
-            })
+        LAYOUT
+            .angles()
+            .into_iter()
+            .map(|a| if a.cos() > 1e-6 { (ahead / a.cos()).min(10.0) as f32 } else { 10.0 })
             .collect()
     }
 
