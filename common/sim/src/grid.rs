@@ -164,13 +164,18 @@ impl ClearanceMap {
     }
 
     /// This map with the cells holding `points` occupied as well: a scan's returns, so that a
-    /// replan goes round a door that has closed or a person standing in the way.
-    pub fn with_points(&self, points: &[Point]) -> ClearanceMap {
+    /// replan goes round a door that has closed or a person standing in the way. A point in a
+    /// cell within `known_m` of an occupied one is the map's own obstacle seen with some error
+    /// and marks nothing.
+    pub fn with_points(&self, points: &[Point], known_m: f64) -> ClearanceMap {
         let r = &self.raster;
         let mut occupied: Vec<bool> = self.dist.iter().map(|&d| d == 0.0).collect();
         for &p in points {
             if let Some((i, j)) = r.cell_of(p) {
-                occupied[r.index(i, j)] = true;
+                let c = r.index(i, j);
+                if self.dist[c] > known_m {
+                    occupied[c] = true;
+                }
             }
         }
         let dist =

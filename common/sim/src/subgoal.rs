@@ -104,6 +104,7 @@ impl SubgoalConfig {
             ("margin_m", p.margin_m),
             ("clearance_weight", p.clearance_weight),
             ("preferred_clearance_m", p.preferred_clearance_m),
+            ("known_tolerance_m", p.known_tolerance_m),
         ] {
             if !(x.is_finite() && x >= 0.0) {
                 return Err((format!("env.subgoals.planner.{k}"), format!("must be ≥ 0, not {x}")));

@@ -96,7 +96,7 @@ impl PlanMap {
         } else {
             let room: Vec<[f64; 2]> =
                 obstacles.iter().map(|&p| self.frame.map_to_room(p)).collect();
-            marked = self.clearance.with_points(&room);
+            marked = self.clearance.with_points(&room, cfg.known_tolerance_m);
             &marked
         };
         let path = planner::plan(clearance, radius, a, b, cfg).map_err(|e| {

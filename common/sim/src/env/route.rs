@@ -81,7 +81,8 @@ impl RouteState {
                     planner::plan(room.planning_map(), self.radius, pose.position(), goal, &cfg)
                 }
                 Replan::Stall => {
-                    let map = room.planning_map().with_points(&scan_points());
+                    let map =
+                        room.planning_map().with_points(&scan_points(), cfg.known_tolerance_m);
                     planner::plan(&map, self.radius, pose.position(), goal, &cfg)
                 }
             };

@@ -107,9 +107,26 @@ fn points_added_to_a_map_close_a_gap() {
     assert!(map.reach(0.2).connected(left, right, 0.1));
     // A person standing in the gap, seen as a few returns.
     let person: Vec<Point> = (-4..=4).map(|k| [-0.05, k as f64 * 0.1]).collect();
-    let closed = map.with_points(&person);
+    let closed = map.with_points(&person, 0.1);
     assert!(!closed.reach(0.2).connected(left, right, 0.1));
-    assert_eq!(map.with_points(&[]).dist, map.dist);
+    assert_eq!(map.with_points(&[], 0.1).dist, map.dist);
+}
+
+#[test]
+fn returns_near_the_maps_own_walls_mark_nothing_within_the_tolerance() {
+    // The gap's jambs seen through range noise: returns up to 6 cm into the gap from each side.
+    let map = ClearanceMap::of_room(&split_room(1.0));
+    let (left, right) = ([-1.5, 1.0], [1.5, 1.0]);
+    let jambs: Vec<Point> = (0..=12)
+        .flat_map(|k| [[0.0, 0.5 - k as f64 * 0.005], [0.0, -0.5 + k as f64 * 0.005]])
+        .collect();
+    assert_eq!(map.with_points(&jambs, 0.1).dist, map.dist, "the walls already known");
+    // Marked all the same, they narrow the gap below what a 0.42 m disc needs.
+    assert!(map.reach(0.42).connected(left, right, 0.1));
+    assert!(!map.with_points(&jambs, 0.0).reach(0.42).connected(left, right, 0.1));
+    // A return farther from every wall than the tolerance is new and marked.
+    let person = [[0.0, 0.0]];
+    assert_ne!(map.with_points(&person, 0.1).dist, map.dist);
 }
 
 #[test]
