@@ -26,10 +26,27 @@ class Policy:
         self._core = core
 
     @classmethod
-    def load(cls, path: str, footprint: str | None = None, margin: float | None = None) -> "Policy":
+    def load(
+        cls,
+        path: str,
+        footprint: str | None = None,
+        margin: float | None = None,
+        safety_horizon: float = 0.0,
+    ) -> "Policy":
         """Loads ``path`` (a model or checkpoint directory, or its ``policy.safetensors``);
-        ``footprint``: a footprint file for DVST; ``margin`` (m) replaces its margin."""
-        return cls(_core.Policy.load(str(path), None if footprint is None else str(footprint), margin))
+        ``footprint``: a footprint file for DVST; ``margin`` (m) replaces its margin.
+
+        ``safety_horizon`` (seconds, 0: off) runs a collision monitor on every command, as
+        ``dvnav serve --safety-horizon`` and ``dvnav eval --safety-horizon`` do: v is scaled
+        down so that the robot, driving the command that long, would not reach a return of the
+        observation's scan (ω is the policy's). 0.6 took dense held-out clutter at R = 0.6 from
+        93.9 to 98.7 % with no collision on long routes (docs/results.md, "A collision
+        monitor")."""
+        return cls(
+            _core.Policy.load(
+                str(path), None if footprint is None else str(footprint), margin, float(safety_horizon)
+            )
+        )
 
     def __call__(self, obs) -> np.ndarray:
         return self.actions(obs)
@@ -104,6 +121,11 @@ class Policy:
     def obs_dim(self) -> int:
         """Length of one observation."""
         return self._core.obs_dim
+
+    @property
+    def safety_horizon(self) -> float:
+        """The collision monitor's horizon (s; 0: off)."""
+        return self._core.safety_horizon
 
     @property
     def mu(self) -> float:

@@ -7,6 +7,7 @@ use dvnav_nav::policy::{MetaAgent, NavPolicy, read_policy};
 use dvnav_sim::EnvConfig;
 use dvnav_sim::laser_scan::BeamLayout;
 use dvnav_sim::latency;
+use dvnav_sim::safety;
 use numpy::{
     PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods,
 };
@@ -22,6 +23,8 @@ pub struct Policy {
     /// The run's `[env]`: the action scale (v_max, ω_max) of its environments.
     env: EnvConfig,
     mu: f64,
+    /// The collision monitor's horizon (s; 0: off).
+    safety_horizon_s: f64,
     path: String,
 }
 
@@ -29,10 +32,22 @@ pub struct Policy {
 impl Policy {
     /// `path`: a model or checkpoint directory, or its `policy.safetensors`; `footprint`: a
     /// footprint file for DVST (its meta robot must be the one the model was trained as);
-    /// `margin` (m) replaces the file's margin.
+    /// `margin` (m) replaces the file's margin; `safety_horizon` (s, 0: off) runs the collision
+    /// monitor on every command.
     #[staticmethod]
-    #[pyo3(signature = (path, footprint=None, margin=None))]
-    fn load(path: &str, footprint: Option<&str>, margin: Option<f64>) -> PyResult<Policy> {
+    #[pyo3(signature = (path, footprint=None, margin=None, safety_horizon=0.0))]
+    fn load(
+        path: &str,
+        footprint: Option<&str>,
+        margin: Option<f64>,
+        safety_horizon: f64,
+    ) -> PyResult<Policy> {
+        if !(safety_horizon.is_finite() && safety_horizon >= 0.0) {
+            return Err(value_error(anyhow::anyhow!(
+                "safety_horizon is {safety_horizon}; it must be 0 (off) or a positive number of \
+                 seconds (0.6 as measured in docs/results.md)"
+            )));
+        }
         let file = read_policy(Path::new(path)).map_err(value_error)?;
         let agent = MetaAgent::from_policy_file(&file).map_err(value_error)?;
         let env = file.config.env.clone();
@@ -53,7 +68,13 @@ impl Policy {
                 (Box::new(dvst), mu)
             }
         };
-        Ok(Policy { policy, env, mu, path: file.path.display().to_string() })
+        Ok(Policy {
+            policy,
+            env,
+            mu,
+            safety_horizon_s: safety_horizon,
+            path: file.path.display().to_string(),
+        })
     }
 
     /// Commands (v m/s, ω rad/s) for observations `obs` (n x obs_dim), one row each.
@@ -131,6 +152,12 @@ impl Policy {
         self.policy.obs_dim()
     }
 
+    /// The collision monitor's horizon (s; 0: off).
+    #[getter]
+    fn safety_horizon(&self) -> f64 {
+        self.safety_horizon_s
+    }
+
     /// μ, the DVST scale (1 without a footprint).
     #[getter]
     fn mu(&self) -> f64 {
@@ -177,6 +204,26 @@ impl Policy {
         }
         let data = obs.as_slice().map_err(value_error)?;
         let policy = &mut self.policy;
-        py.detach(|| policy.act_batch(data)).map_err(value_error)
+        let mut commands = py.detach(|| policy.act_batch(data)).map_err(value_error)?;
+        if self.safety_horizon_s > 0.0 {
+            // In the robot's own frame: DVST scales the meta robot's scan, disc and speed by
+            // the same μ, so the monitor on the robot's scan, the meta disc times μ and the
+            // robot's command limits what `dvnav serve` limits on the meta ones (the robot's
+            // own velocity bounds, lower, only shorten the arc checked).
+            let lidar = &self.env.lidar;
+            let layout = BeamLayout::new(lidar.beams, lidar.fov_deg);
+            let radius = self.env.robot_radius * self.mu;
+            for (row, c) in data.chunks_exact(d).zip(commands.iter_mut()) {
+                c.0 = safety::safe_speed(
+                    &row[..layout.beams],
+                    layout,
+                    lidar.range_max * self.mu,
+                    radius,
+                    *c,
+                    self.safety_horizon_s,
+                );
+            }
+        }
+        Ok(commands)
     }
 }

@@ -184,3 +184,52 @@ def test_carry_forward_with_no_motion_or_bad_input():
     ]:
         with pytest.raises(ValueError, match=says):
             policy.carry_forward(*args)
+
+
+def test_the_collision_monitor_slows_a_robot_short_of_an_obstacle_and_leaves_open_space_alone():
+    plain = dvnav.Policy.load(str(MODEL))
+    monitored = dvnav.Policy.load(str(MODEL), safety_horizon=3.0)
+    assert monitored.safety_horizon == 3.0 and plain.safety_horizon == 0.0
+    obs = observations(8, seed=3)
+    obs[:, 540], obs[:, 541] = 3.0, 0.0  # the goal 3 m dead ahead
+    # Nothing within reach: the monitor changes nothing.
+    obs[:, :540] = 10.0
+    assert np.array_equal(monitored.velocities(obs), plain.velocities(obs))
+    # An obstacle 1.2 m ahead (beams within ±10°): the agent drives on at ~0.49 m/s, turning
+    # gently; the monitor slows it so that the disc (plus 1 %) driving the command for 3 s
+    # stays clear of every return, and keeps its ω.
+    obs[:, 250:290] = 1.2
+    free, held = plain.velocities(obs), monitored.velocities(obs)
+    assert np.array_equal(held[:, 1], free[:, 1])
+    assert (free[:, 0] > 0.45).all() and (held[:, 0] < free[:, 0] - 0.1).all(), held[:, 0]
+    angles = np.deg2rad(-135 + 270 * (np.arange(540) + 0.5) / 540)
+    returns = np.stack([1.2 * np.cos(angles[250:290]), 1.2 * np.sin(angles[250:290])], axis=1)
+    for v, w in held:
+        for t in np.linspace(0, 3.0, 301):
+            heading = w * t
+            x, y = (v * t, 0.0) if abs(w) < 1e-9 else (v / w * np.sin(heading), v / w * (1 - np.cos(heading)))
+            assert np.hypot(returns[:, 0] - x, returns[:, 1] - y).min() >= 0.2, (v, w, t)
+
+
+def test_the_collision_monitor_in_dvst_is_the_meta_robots_scaled():
+    fp = str(ROOT / "footprints/circle-0.5.toml")
+    meta = dvnav.Policy.load(str(MODEL), safety_horizon=0.6)
+    big = dvnav.Policy.load(str(MODEL), footprint=fp, safety_horizon=0.6)
+    obs, _ = dvnav.NavVectorEnv(num_envs=32, room="env0", seed=2, footprint=fp).reset()
+    obs[:, :540] = np.minimum(obs[:, :540], 0.3 * big.mu)  # an obstacle close on every side
+    scaled = obs.copy()
+    scaled[:, :540] = np.clip(obs[:, :540] / big.mu, 0.02, 10.0)
+    scaled[:, 540] /= big.mu
+    scaled[:, 542] /= big.mu
+    meta_cmd, cmd = meta.velocities(scaled), big.velocities(obs)
+    v_max, w_max = big.velocity_bounds
+    free = (meta_cmd[:, 0] * big.mu <= v_max) & (np.abs(meta_cmd[:, 1]) <= w_max)
+    assert free.sum() >= 4
+    assert np.allclose(cmd[free, 0], meta_cmd[free, 0] * big.mu, atol=1e-9)
+    assert (meta_cmd[:, 0] < 0.2).all(), "the meta robot, 0.1 m from an obstacle, is held"
+
+
+@pytest.mark.parametrize("horizon", [-1.0, float("nan"), float("inf")])
+def test_a_bad_safety_horizon_is_refused(horizon):
+    with pytest.raises(ValueError, match="safety_horizon is"):
+        dvnav.Policy.load(str(MODEL), safety_horizon=horizon)
