@@ -508,6 +508,43 @@ async fn many_robots_send_laser_scans_arrive_and_expire_and_bad_input_is_refused
     assert!(status.success(), "{status}: {log}");
 }
 
+/// `dvnav serve --safety-horizon S`: Info reports the monitor, and a robot driving at an
+/// obstacle ahead is slowed below what the same agent in DVST commands unmonitored, its ω kept.
+/// The scene is the meta robot's (an obstacle 1.2 m ahead within ±10°, the goal 3 m ahead)
+/// scaled by this robot's μ = 0.75.
+#[tokio::test]
+async fn the_collision_monitor_slows_a_served_robot_short_of_an_obstacle() {
+    let dir = tempfile::tempdir().unwrap();
+    let server =
+        Server::start(dir.path(), "footprints/small-0.15.toml", &["--safety-horizon", "3"]);
+    let mut client = server.client().await;
+    let info = client.info(InfoRequest::default()).await.unwrap().into_inner();
+    assert_eq!((info.safety_horizon_s, info.known_tolerance_m), (3.0, 0.1), "{info:?}");
+    let mu = info.mu;
+    let scan: Vec<f32> =
+        (0..540).map(|i| if (250..290).contains(&i) { 1.2 * mu as f32 } else { 7.5 }).collect();
+    let act = ActRequest {
+        scan,
+        goal_distance: 3.0 * mu,
+        goal_angle: 0.0,
+        robot_id: "r".into(),
+        ..ActRequest::default()
+    };
+    let held = client.act(act.clone()).await.unwrap().into_inner();
+    let (agent, _) = MetaAgent::load(&repo("models/meta-r0.2")).unwrap();
+    let robot = VariedRobot::load(&repo("footprints/small-0.15.toml")).unwrap();
+    let mut direct = Dvst::new(agent, robot).unwrap().with_scan_range(Some([0.02, 10.0])).unwrap();
+    let mut obs = act.scan.clone();
+    obs.extend([act.goal_distance as f32, 0.0, 0.0, 0.0]);
+    let free = direct.act_batch(&obs).unwrap()[0];
+    assert!(free.0 > 0.3, "the agent drives on unmonitored: {free:?}");
+    assert!(held.v < free.0 - 0.05, "held {held:?} against {free:?}");
+    assert!((held.omega - free.1).abs() < 1e-6, "ω kept: {held:?} against {free:?}");
+    drop(client);
+    let (status, log) = server.stop().await;
+    assert!(status.success(), "{status}: {log}");
+}
+
 /// A robot with its own planner hands the controller a route (SetRoute) and sends its pose with
 /// every Act: the agent is given the lookahead point as its goal (the command is the one the
 /// same meta agent gives for that goal), the rotation shim turns a robot facing away, arrival is

@@ -442,6 +442,8 @@ fn info_reply(
         lookahead_m: subgoals.lookahead_m,
         replan_distance_m: subgoals.replan_distance_m,
         stall_s: subgoals.stall_s,
+        safety_horizon_s: i.safety_horizon_s,
+        known_tolerance_m: subgoals.planner.known_tolerance_m,
         rotation_shim: subgoals.rotation_shim,
         rotation_shim_angle_deg: subgoals.shim_angle_deg,
         refused,

@@ -211,6 +211,8 @@ pub struct ControllerInfo {
     pub max_robots: usize,
     /// See `robots`.
     pub robot_idle: Duration,
+    /// The collision monitor's horizon (s; 0: off), [`DvstController::with_safety_horizon`].
+    pub safety_horizon_s: f64,
 }
 
 /// Why a request was refused.
@@ -792,6 +794,7 @@ impl DvstController {
             robots: robots.active(Instant::now()),
             max_robots,
             robot_idle,
+            safety_horizon_s: self.safety_horizon_s,
         }
     }
 
