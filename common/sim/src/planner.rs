@@ -37,8 +37,8 @@ pub struct PlannerConfig {
     /// A replan after a stall marks the scan's returns as obstacles, except those within this
     /// distance (m) of the map's own obstacles: those are the walls already known, seen through
     /// range noise and localization error, and marking them narrows every door the robot
-    /// stands in (under σ = 0.02 m noise they closed half the held-out paper layout's gaps
-    /// for R = 0.5; docs/results.md). 0 marks every return.
+    /// stands in (under σ = 0.02 m noise, half the long tasks of a tuning room at R = 0.5
+    /// ended `blocked` so; docs/results.md, "Replans after a stall"). 0 marks every return.
     pub known_tolerance_m: f64,
 }
 
