@@ -27,6 +27,9 @@
   it (a 3 cm margin already makes R = 0.25 m judge the gate too narrow, docs/results.md).
 - `--safety-horizon S`: every suite with the collision monitor on (`dvnav eval
   --safety-horizon`; docs/results.md "A collision monitor"); the kept checks stay the agent's own.
+- `--escape-after S`: every suite with the stall escape on (`dvnav eval --escape-after`: a robot
+  with no progress for S seconds samples its policy's own noise for as long; docs/results.md
+  "The stall escape"); the kept checks stay the agent's own.
 
 It only runs `dvnav eval` and adds up its JSON rows, so every figure can be re-run by hand
 with the command it prints. Rates are pooled over episodes; the reversal rate and mean |Δω|
@@ -107,6 +110,8 @@ def main():
                    help="DVST safety margin (m) for every suite but the kept checks (default: dvnav eval's, 0 m)")
     p.add_argument("--safety-horizon", type=float, default=0.0,
                    help="collision monitor horizon (s) for every suite but the kept checks (0: off)")
+    p.add_argument("--escape-after", type=float, default=0.0,
+                   help="stall escape delay (s) for every suite but the kept checks (0: off)")
     p.add_argument("--no-kept", dest="kept", action="store_false",
                    help="skip the kept checks (gate test, Env_3, dynamic scenario)")
     p.add_argument("--latency-compensation", action="store_true",
@@ -130,6 +135,10 @@ def main():
         p.error(f"--safety-horizon must be a time of at least 0 s, not {a.safety_horizon}")
     if a.safety_horizon > 0.0:
         margin += ["--safety-horizon", str(a.safety_horizon)]
+    if not a.escape_after >= 0.0:
+        p.error(f"--escape-after must be a time of at least 0 s, not {a.escape_after}")
+    if a.escape_after > 0.0:
+        margin += ["--escape-after", str(a.escape_after)]
 
     started = time.time()
     suites = []
@@ -202,6 +211,7 @@ def main():
         os.makedirs(os.path.dirname(a.out) or ".", exist_ok=True)
         with open(a.out, "w") as f:
             json.dump({"checkpoint": a.checkpoint, "margin": a.margin, "safety_horizon_s": a.safety_horizon,
+                       "escape_after_s": a.escape_after,
                        "suites": suites, "kept": kept}, f, indent=1)
 
 

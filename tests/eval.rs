@@ -245,6 +245,8 @@ fn bad_input_fails_with_a_clear_message() {
     assert!(e.contains("--latency-compensation") && e.contains("--latency K"), "{e}");
     let e = stderr(&eval(&["--checkpoint", ok, "--safety-horizon=-0.5"]));
     assert!(e.contains("--safety-horizon") && e.contains("at least 0 s"), "{e}");
+    let e = stderr(&eval(&["--checkpoint", ok, "--escape-after=-3"]));
+    assert!(e.contains("--escape-after") && e.contains("at least 0 s") && e.contains("-3"), "{e}");
     let e = stderr(&eval(&["--checkpoint", ck, "--tasks", "medium"]));
     assert!(e.contains("--tasks") && e.contains("long"), "{e}");
 }

@@ -9,6 +9,7 @@
 //! results do not depend on the number of threads; they are returned in job order.
 
 use super::episode::{EpisodeResult, Recorder, StepSample};
+use dvnav_nav::escape::StallEscape;
 use dvnav_nav::policy::NavPolicy;
 use dvnav_sim::Outcome;
 use dvnav_sim::laser_scan::BeamLayout;
@@ -67,11 +68,22 @@ pub struct RunOptions {
     /// scaled down so that the meta robot would not reach a return of its observed scan within
     /// it. 0: off.
     pub safety_horizon_s: f64,
+    /// The stall escape ([`dvnav_nav::escape`]): after this many seconds without progress
+    /// towards its goal a robot samples its policy's own noise for as long. 0: off.
+    pub escape_after_s: f64,
 }
+
+/// Folded with a job's index into its stall escape's seed.
+const ESCAPE_SEED: u64 = 0x657363_61706521;
+
+/// The goal-distance progress that counts for the stall escape, as a share of the robot's
+/// (bounding) radius: 0.1 m for the 0.2 m meta robot, and a robot through DVST must come as
+/// much closer as its size scales.
+pub const ESCAPE_PROGRESS_RADII: f64 = 0.5;
 
 impl Default for RunOptions {
     fn default() -> Self {
-        Self { window: 64, samples: false, safety_horizon_s: 0.0 }
+        Self { window: 64, samples: false, safety_horizon_s: 0.0, escape_after_s: 0.0 }
     }
 }
 
@@ -101,18 +113,25 @@ struct Slot {
     leg: usize,
     recorder: Recorder,
     legs: Vec<EpisodeResult>,
+    escape: Option<StallEscape>,
 }
 
 impl Slot {
     /// The job's first episode; `Err` when its room has no random task for its robot.
-    fn start(job: usize, j: Job, samples: bool) -> Result<Slot, dvnav_sim::NoTask> {
+    fn start(job: usize, j: Job, opts: &RunOptions) -> Result<Slot, dvnav_sim::NoTask> {
         let Job { mut env, plan, policy } = j;
         match &plan {
             Plan::Random => env.try_reset()?,
             Plan::Route { start, goals } => env.reset_to(*start, goals[0]),
         }
-        let recorder = Recorder::begin(&env, samples);
-        Ok(Slot { job, env, plan, policy, leg: 0, recorder, legs: Vec::new() })
+        let recorder = Recorder::begin(&env, opts.samples);
+        // Seeded by the job: the same jobs replay the same escapes.
+        let escape = (opts.escape_after_s > 0.0).then(|| {
+            let progress = ESCAPE_PROGRESS_RADII * env.robot_radius();
+            StallEscape::new(opts.escape_after_s, progress, ESCAPE_SEED ^ job as u64)
+                .expect("escape settings checked by run_jobs")
+        });
+        Ok(Slot { job, env, plan, policy, leg: 0, recorder, legs: Vec::new(), escape })
     }
 }
 
@@ -129,6 +148,9 @@ pub fn run_jobs(
     on_leg: &mut dyn FnMut(LegDone<'_>) -> anyhow::Result<()>,
 ) -> anyhow::Result<Vec<Vec<EpisodeResult>>> {
     anyhow::ensure!(opts.window > 0, "the evaluation window must hold at least one job");
+    if opts.escape_after_s != 0.0 {
+        StallEscape::new(opts.escape_after_s, ESCAPE_PROGRESS_RADII, 0)?;
+    }
     for (i, j) in jobs.iter().enumerate() {
         let p = policies.get(j.policy).ok_or_else(|| {
             anyhow::anyhow!("job {i}: policy {} of {} does not exist", j.policy, policies.len())
@@ -154,10 +176,11 @@ pub fn run_jobs(
     let mut obs = Vec::new();
     let mut commands: Vec<(f64, f64)> = Vec::new();
     let mut group: Vec<usize> = Vec::new();
+    let mut noise: Vec<Option<[f32; 2]>> = Vec::new();
     loop {
         while slots.len() < opts.window {
             let Some((i, j)) = pending.pop_front() else { break };
-            match Slot::start(i, j, opts.samples) {
+            match Slot::start(i, j, &opts) {
                 Ok(slot) => slots.push(slot),
                 // Drawn once when the environment was made, not again: a room where tasks are
                 // that rare for the robot. The job has no legs.
@@ -181,7 +204,18 @@ pub fn run_jobs(
             for (n, &k) in group.iter().enumerate() {
                 slots[k].env.write_obs(&mut obs[n * d..(n + 1) * d]);
             }
-            let out = policy.act_batch(&obs)?;
+            let out = if opts.escape_after_s > 0.0 {
+                noise.clear();
+                noise.extend(group.iter().map(|&k| {
+                    let s = &mut slots[k];
+                    let t = s.env.steps() as f64 * s.env.config().dt;
+                    let d = s.env.goal_distance();
+                    s.escape.as_mut().and_then(|e| e.noise(t, d))
+                }));
+                policy.act_batch_noisy(&obs, &noise)?
+            } else {
+                policy.act_batch(&obs)?
+            };
             anyhow::ensure!(
                 out.len() == group.len(),
                 "policy {p} returned {} commands for {} observations",
@@ -248,6 +282,9 @@ pub fn run_jobs(
                 Some(goal) => {
                     let at = s.env.pose();
                     s.env.reset_to(at, goal);
+                    if let Some(e) = &mut s.escape {
+                        e.reset();
+                    }
                     s.leg += 1;
                     s.recorder = Recorder::begin(&s.env, opts.samples);
                     k += 1;
@@ -398,6 +435,73 @@ mod tests {
         assert_eq!(outcome, Outcome::Timeout);
         // The wall's face is at x = 1.4; the 0.2 m robot stops within a few centimetres of it.
         assert!(at.x > 1.1 && at.x < 1.2, "stopped at x = {}", at.x);
+    }
+
+    /// Stands still when acting deterministically; with noise, the PID controller's command.
+    /// Counts the cycles it was given noise.
+    struct FrozenUnlessNoisy {
+        inner: PidPolicy,
+        noisy_cycles: usize,
+    }
+    impl NavPolicy for FrozenUnlessNoisy {
+        fn beams(&self) -> usize {
+            self.inner.beams()
+        }
+        fn act(&mut self, _obs: &[f32]) -> anyhow::Result<(f64, f64)> {
+            Ok((0.0, 0.0))
+        }
+        fn velocity_bounds(&self) -> (f64, f64) {
+            self.inner.velocity_bounds()
+        }
+        fn act_batch_noisy(
+            &mut self,
+            obs: &[f32],
+            noise: &[Option<[f32; 2]>],
+        ) -> anyhow::Result<Vec<(f64, f64)>> {
+            let d = dvnav_sim::obs::obs_dim(self.beams());
+            let mut out = Vec::new();
+            for (o, n) in obs.chunks_exact(d).zip(noise) {
+                self.noisy_cycles += n.is_some() as usize;
+                out.push(if n.is_some() { self.inner.act(o)? } else { (0.0, 0.0) });
+            }
+            Ok(out)
+        }
+    }
+
+    /// The stall escape: a policy frozen in place times out without it; with it, after the
+    /// delay without progress the robot is driven by its policy's noisy action for as long,
+    /// then freezes again until the next escape, 2 s after the last progress.
+    #[test]
+    fn the_stall_escape_moves_a_frozen_robot_after_the_delay() {
+        let cfg = Config::default();
+        let room = Arc::new(Room::new(RoomSpec::empty("empty", 8.0)));
+        let run = |after_s: f64| {
+            let job = Job {
+                env: NavEnv::new(room.clone(), &cfg.env, 3),
+                plan: Plan::Route { start: Pose2::new(0.0, 0.0, 0.0), goals: vec![[2.0, 0.0]] },
+                policy: 0,
+            };
+            let mut p = FrozenUnlessNoisy { inner: pid(&cfg), noisy_cycles: 0 };
+            let opts = RunOptions { escape_after_s: after_s, ..Default::default() };
+            let out = run_jobs(vec![job], &mut [&mut p], opts, &mut |_| Ok(())).unwrap();
+            (out[0][0].outcome, out[0][0].steps, p.noisy_cycles)
+        };
+        let (outcome, steps, noisy) = run(0.0);
+        assert_eq!((outcome, steps, noisy), (Outcome::Timeout, cfg.env.max_steps, 0));
+        let (outcome, steps, noisy) = run(2.0);
+        assert_eq!(outcome, Outcome::Success);
+        // Frozen for 10 cycles (2 s), escaping for 10 (~1 m at 0.5 m/s), frozen until 2 s after
+        // the escape's last progress, escaping again for the remaining ~0.8 m.
+        assert!((35..=42).contains(&steps), "{steps} steps");
+        assert!((17..=21).contains(&noisy), "{noisy} noisy cycles");
+        assert!((19..=21).contains(&(steps - noisy as u32)), "{steps} steps, {noisy} noisy");
+        let bad = run_jobs(
+            Vec::new(),
+            &mut [],
+            RunOptions { escape_after_s: -1.0, ..Default::default() },
+            &mut |_| Ok(()),
+        );
+        assert!(bad.unwrap_err().to_string().contains("-1"));
     }
 
     #[test]

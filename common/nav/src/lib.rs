@@ -7,6 +7,8 @@
 //! - [`control`]: the PID warm-up controller.
 //! - [`policy`]: [`policy::NavPolicy`], observation in, velocity out: the trained agent
 //!   ([`policy::MetaAgent`]), the PID baseline, and what DVST wraps.
+//! - [`escape`]: the stall escape, a recovery behaviour that samples the policy's own noise
+//!   while a robot makes no progress.
 //! - [`weights`]: policy weights as versioned safetensors bytes, rebuilt once per version.
 //! - [`dvst`]: dimension-variable skill transfer: the meta robot, μ, the varied-robot file,
 //!   observation and policy transfer, [`dvst::Dvst`] that wraps any policy, and
@@ -29,6 +31,7 @@ pub mod control;
 pub mod conv;
 pub mod dense;
 pub mod dvst;
+pub mod escape;
 pub mod fused;
 pub mod nets;
 pub mod policy;

@@ -42,6 +42,18 @@ pub trait NavPolicy {
         );
         obs.chunks_exact(d).map(|o| self.act(o)).collect()
     }
+    /// As [`act_batch`](Self::act_batch), with the rows that have noise ε (standard normal,
+    /// one value per action dimension) sampled from the policy's own distribution instead of
+    /// acted deterministically: the stall escape ([`crate::escape`]). A policy that has no
+    /// distribution (the PID controller) ignores the noise, which is this default.
+    fn act_batch_noisy(
+        &mut self,
+        obs: &[f32],
+        noise: &[Option<[f32; 2]>],
+    ) -> anyhow::Result<Vec<(f64, f64)>> {
+        let _ = noise;
+        self.act_batch(obs)
+    }
 }
 
 /// A policy as stored: its weights file and the configuration beside it.
@@ -125,6 +137,43 @@ impl MetaAgent {
         let a = self.actor.deterministic(&t)?.to_vec2::<f32>()?;
         Ok(a.into_iter().map(|a| action_to_velocity([a[0], a[1]], &self.env)).collect())
     }
+
+    /// [`act_batch`](Self::act_batch) with the rows that have noise ε sampled: a =
+    /// tanh(μ + σ·ε), the squashed Gaussian SAC trained; the other rows as `act_batch` gives
+    /// them, to the bit.
+    pub fn act_batch_noisy(
+        &self,
+        obs: &[f32],
+        noise: &[Option<[f32; 2]>],
+    ) -> anyhow::Result<Vec<(f64, f64)>> {
+        let d = self.layout.dim();
+        let n = obs.len() / d;
+        anyhow::ensure!(
+            obs.len() == n * d && noise.len() == n,
+            "{} observation values and {} noise rows: expected {d} values per row",
+            obs.len(),
+            noise.len()
+        );
+        if noise.iter().all(Option::is_none) {
+            return self.act_batch(obs);
+        }
+        let t = Tensor::from_slice(obs, (n, d), &Device::Cpu)?;
+        let (mean, log_std) = self.actor.forward(&t)?;
+        let deterministic = mean.tanh()?.to_vec2::<f32>()?;
+        let (mean, log_std) = (mean.to_vec2::<f32>()?, log_std.to_vec2::<f32>()?);
+        Ok((0..n)
+            .map(|i| {
+                let a = match noise[i] {
+                    Some(eps) => {
+                        let u = |j: usize| (mean[i][j] + log_std[i][j].exp() * eps[j]).tanh();
+                        [u(0), u(1)]
+                    }
+                    None => [deterministic[i][0], deterministic[i][1]],
+                };
+                action_to_velocity(a, &self.env)
+            })
+            .collect())
+    }
 }
 
 impl NavPolicy for MetaAgent {
@@ -148,6 +197,14 @@ impl NavPolicy for MetaAgent {
 
     fn act_batch(&mut self, obs: &[f32]) -> anyhow::Result<Vec<(f64, f64)>> {
         MetaAgent::act_batch(self, obs)
+    }
+
+    fn act_batch_noisy(
+        &mut self,
+        obs: &[f32],
+        noise: &[Option<[f32; 2]>],
+    ) -> anyhow::Result<Vec<(f64, f64)>> {
+        MetaAgent::act_batch_noisy(self, obs, noise)
     }
 }
 
@@ -222,5 +279,36 @@ mod tests {
         // DVST transfers the standard observation only.
         let e = Dvst::new(agent, VariedRobot::new(Footprint::circle(0.4))).unwrap_err();
         assert!(e.to_string().contains("own radius"), "{e}");
+    }
+
+    #[test]
+    fn noisy_rows_sample_the_squashed_gaussian_and_the_others_stay_deterministic() {
+        let (cfg, agent) = radius_input_agent();
+        let d = NavPolicy::obs_dim(&agent);
+        let mut obs = vec![2.0f32; 3 * d];
+        for (k, row) in obs.chunks_exact_mut(d).enumerate() {
+            row[540..].copy_from_slice(&[1.5 + k as f32, 0.4, 0.2, 0.1, 0.2]);
+        }
+        let plain = agent.act_batch(&obs).unwrap();
+        let eps = [0.7f32, -1.3];
+        let noisy = agent.act_batch_noisy(&obs, &[None, Some(eps), None]).unwrap();
+        assert_eq!((noisy[0], noisy[2]), (plain[0], plain[2]), "rows without noise, to the bit");
+        assert_ne!(noisy[1], plain[1]);
+        // Row 1 is tanh(μ + σ·ε), computed here from the network's own outputs.
+        let t = Tensor::from_slice(&obs[d..2 * d], (1, d), &Device::Cpu).unwrap();
+        let (mean, log_std) = agent.actor().forward(&t).unwrap();
+        let (m, ls) = (mean.to_vec2::<f32>().unwrap(), log_std.to_vec2::<f32>().unwrap());
+        let a = [0, 1].map(|j| (m[0][j] + ls[0][j].exp() * eps[j]).tanh());
+        let want = action_to_velocity(a, &cfg.env);
+        assert!((noisy[1].0 - want.0).abs() < 1e-6 && (noisy[1].1 - want.1).abs() < 1e-6);
+        // No noise at all: act_batch itself; a wrong number of rows is refused.
+        assert_eq!(agent.act_batch_noisy(&obs, &[None; 3]).unwrap(), plain);
+        assert!(agent.act_batch_noisy(&obs, &[None; 2]).is_err());
+        // The PID controller has no distribution: it ignores the noise.
+        let mut pid = PidPolicy { warmup: cfg.warmup.clone(), env: cfg.env.clone() };
+        assert_eq!(
+            pid.act_batch_noisy(&obs, &[Some(eps); 3]).unwrap(),
+            pid.act_batch(&obs).unwrap()
+        );
     }
 }

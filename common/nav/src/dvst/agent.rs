@@ -142,6 +142,37 @@ impl<P: NavPolicy> NavPolicy for Dvst<P> {
     fn velocity_bounds(&self) -> (f64, f64) {
         (self.bounds.v_max, self.bounds.omega_max)
     }
+
+    /// The meta policy's noisy action (the stall escape), transferred as any other.
+    fn act_batch_noisy(
+        &mut self,
+        obs: &[f32],
+        noise: &[Option<[f32; 2]>],
+    ) -> anyhow::Result<Vec<(f64, f64)>> {
+        let beams = self.meta.beams();
+        let d = obs_dim(beams);
+        anyhow::ensure!(
+            obs.len() == noise.len() * d,
+            "{} observation values for {} noise rows: expected {d} per row",
+            obs.len(),
+            noise.len()
+        );
+        let mut out = Vec::with_capacity(noise.len());
+        for (o, &n) in obs.chunks_exact(d).zip(noise) {
+            if n.is_none() {
+                out.push(self.act(o)?);
+                continue;
+            }
+            transfer_observation(o, beams, self.mu, self.scan_range, &mut self.scratch);
+            let (v_m, omega_m) = self.meta.act_batch_noisy(&self.scratch, &[n])?[0];
+            anyhow::ensure!(
+                v_m.is_finite() && omega_m.is_finite(),
+                "the meta policy answered a non-finite command ({v_m}, {omega_m})"
+            );
+            out.push(transfer_policy(v_m, omega_m, self.mu, self.bounds));
+        }
+        Ok(out)
+    }
 }
 
 #[cfg(test)]
@@ -168,6 +199,48 @@ mod tests {
         fn velocity_bounds(&self) -> (f64, f64) {
             (0.5, 1.5)
         }
+    }
+
+    /// A meta policy that answers (0.1, 0) deterministically and (0.2, ε₀) for noise ε.
+    #[derive(Debug)]
+    struct NoisyProbe {
+        seen: Vec<Vec<f32>>,
+    }
+
+    impl NavPolicy for NoisyProbe {
+        fn beams(&self) -> usize {
+            3
+        }
+        fn act(&mut self, _obs: &[f32]) -> anyhow::Result<(f64, f64)> {
+            Ok((0.1, 0.0))
+        }
+        fn velocity_bounds(&self) -> (f64, f64) {
+            (0.5, 1.5)
+        }
+        fn act_batch_noisy(
+            &mut self,
+            obs: &[f32],
+            noise: &[Option<[f32; 2]>],
+        ) -> anyhow::Result<Vec<(f64, f64)>> {
+            self.seen.push(obs.to_vec());
+            Ok(noise.iter().map(|n| n.map_or((0.1, 0.0), |e| (0.2, e[0] as f64))).collect())
+        }
+    }
+
+    #[test]
+    fn the_meta_policy_samples_for_the_noisy_rows_on_the_transferred_observation() {
+        let mut dvst =
+            Dvst::new(NoisyProbe { seen: Vec::new() }, VariedRobot::new(Footprint::circle(0.4)))
+                .unwrap();
+        let obs = [1.0, 2.0, 10.0, 4.0, 0.3, 0.2, -0.5];
+        let two: Vec<f32> = obs.iter().chain(&obs).copied().collect();
+        let out = dvst.act_batch_noisy(&two, &[None, Some([0.25, 0.0])]).unwrap();
+        // μ = 2: v doubles, ω stays (within the meta agent's bounds).
+        assert_eq!(out, vec![(0.2, 0.0), (0.4, 0.25)]);
+        let seen = &dvst.meta_policy().seen;
+        assert_eq!(seen.len(), 1, "only the noisy row asked for the meta policy's noise");
+        assert_eq!(seen[0][..3], [0.5, 1.0, 5.0], "the scan in the meta robot's frame");
+        assert!(dvst.act_batch_noisy(&two, &[None]).is_err(), "one noise entry per row");
     }
 
     #[test]
