@@ -508,18 +508,21 @@ async fn many_robots_send_laser_scans_arrive_and_expire_and_bad_input_is_refused
     assert!(status.success(), "{status}: {log}");
 }
 
-/// `dvnav serve --safety-horizon S`: Info reports the monitor, and a robot driving at an
+/// `dvnav serve --safety-horizon S`: Info reports the monitor (and the stall escape), and a
+/// robot driving at an
 /// obstacle ahead is slowed below what the same agent in DVST commands unmonitored, its ω kept.
 /// The scene is the meta robot's (an obstacle 1.2 m ahead within ±10°, the goal 3 m ahead)
 /// scaled by this robot's μ = 0.75.
 #[tokio::test]
 async fn the_collision_monitor_slows_a_served_robot_short_of_an_obstacle() {
     let dir = tempfile::tempdir().unwrap();
-    let server =
-        Server::start(dir.path(), "footprints/small-0.15.toml", &["--safety-horizon", "3"]);
+    // The stall escape on too (`--escape-after`): Info says so; a first call is never one.
+    let flags = ["--safety-horizon", "3", "--escape-after", "2.5"];
+    let server = Server::start(dir.path(), "footprints/small-0.15.toml", &flags);
     let mut client = server.client().await;
     let info = client.info(InfoRequest::default()).await.unwrap().into_inner();
     assert_eq!((info.safety_horizon_s, info.known_tolerance_m), (3.0, 0.1), "{info:?}");
+    assert_eq!(info.escape_after_s, 2.5, "{info:?}");
     let mu = info.mu;
     let scan: Vec<f32> =
         (0..540).map(|i| if (250..290).contains(&i) { 1.2 * mu as f32 } else { 7.5 }).collect();

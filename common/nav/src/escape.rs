@@ -27,6 +27,8 @@ pub struct StallEscape {
     best_t: f64,
     /// The current escape runs until this time (−∞: none).
     until: f64,
+    /// The goal distance and time of the last [`follow_goal`](Self::follow_goal) call.
+    last: Option<(f64, f64)>,
     rng: Pcg64Mcg,
 }
 
@@ -48,6 +50,7 @@ impl StallEscape {
             best_m: f64::INFINITY,
             best_t: 0.0,
             until: f64::NEG_INFINITY,
+            last: None,
             rng: Pcg64Mcg::seed_from_u64(seed),
         })
     }
@@ -57,6 +60,20 @@ impl StallEscape {
         self.best_m = f64::INFINITY;
         self.best_t = 0.0;
         self.until = f64::NEG_INFINITY;
+    }
+
+    /// For a caller that is not told when the goal changes (a robot's controller, which sees
+    /// only the goal's distance each cycle): a distance that changed by more than a robot at
+    /// `v_max_mps` could drive since the last call (with half as much again, and
+    /// `min_progress_m`, for slack) is a new goal, and [`reset`](Self::reset)s the watch.
+    pub fn follow_goal(&mut self, t_s: f64, goal_distance_m: f64, v_max_mps: f64) {
+        if let Some((t0, d0)) = self.last {
+            let reach = 1.5 * v_max_mps * (t_s - t0).max(0.0) + self.min_progress_m;
+            if (goal_distance_m - d0).abs() > reach {
+                self.reset();
+            }
+        }
+        self.last = Some((t_s, goal_distance_m));
     }
 
     /// Whether an escape runs at `t_s` (as the last [`noise`](Self::noise) call left it).
@@ -121,6 +138,24 @@ mod tests {
         assert_eq!(e.noise(0.0, 9.0), None);
         assert_eq!(e.noise(0.8, 9.0), None);
         assert!(e.noise(1.0, 9.0).is_some());
+    }
+
+    #[test]
+    fn a_goal_that_jumps_further_than_the_robot_drives_is_a_new_goal() {
+        let mut e = StallEscape::new(1.0, 0.1, 1).unwrap();
+        let mut step = |k: usize, d: f64| {
+            e.follow_goal(k as f64 * DT, d, 0.5);
+            e.noise(k as f64 * DT, d).is_some()
+        };
+        // Stuck at 4 m: the escape begins at cycle 5.
+        assert!(!(0..5).any(|k| step(k, 4.0)));
+        assert!(step(5, 4.0));
+        // 0.12 m further in one 0.2 s cycle is within reach (0.5 m/s · 1.5 · 0.2 s + 0.1 m):
+        // the same goal, the escape goes on.
+        assert!(step(6, 4.12));
+        // A new goal 3 m away: the watch starts over, no escape for the next second.
+        assert!(!(7..12).any(|k| step(k, 7.0)));
+        assert!(step(12, 7.0));
     }
 
     #[test]

@@ -71,6 +71,13 @@ pub struct ServeArgs {
     /// monitor"). 0: off, the agent's own commands.
     #[arg(long, value_name = "S", default_value_t = 0.0)]
     safety_horizon: f64,
+    /// The stall escape for robots driving without a route: one that has come no closer to its
+    /// goal for this many seconds gets the agent's own sampled action, tanh(μ + σ·ε), for as
+    /// long, then the deterministic one again (`dvnav eval --escape-after`; 3 s was best on
+    /// tuning rooms, docs/results.md "The stall escape"). Robots on a route replan instead.
+    /// 0: off, the deterministic policy.
+    #[arg(long, value_name = "S", default_value_t = 0.0)]
+    escape_after: f64,
 }
 
 /// Runs `dvnav serve` until Ctrl-C or SIGTERM.
@@ -86,7 +93,9 @@ pub fn run(args: ServeArgs) -> anyhow::Result<ExitCode> {
         .map_err(|e| anyhow::anyhow!("--max-robots / --robot-idle-s: {e:#}"))?
         .with_batched_inference(args.batched_inference)
         .with_safety_horizon(args.safety_horizon)
-        .map_err(|e| anyhow::anyhow!("--safety-horizon: {e:#}"))?;
+        .map_err(|e| anyhow::anyhow!("--safety-horizon: {e:#}"))?
+        .with_stall_escape(args.escape_after)
+        .map_err(|e| anyhow::anyhow!("--escape-after: {e:#}"))?;
     let warm = std::time::Instant::now();
     ctl.warm_up().map_err(|e| {
         anyhow::anyhow!("{}: the policy failed its first pass: {e:#}", args.checkpoint.display())
@@ -443,6 +452,7 @@ fn info_reply(
         replan_distance_m: subgoals.replan_distance_m,
         stall_s: subgoals.stall_s,
         safety_horizon_s: i.safety_horizon_s,
+        escape_after_s: i.escape_after_s,
         known_tolerance_m: subgoals.planner.known_tolerance_m,
         rotation_shim: subgoals.rotation_shim,
         rotation_shim_angle_deg: subgoals.shim_angle_deg,

@@ -39,6 +39,7 @@ use super::route::{PlanMap, RobotRoute, RouteRefusal, RouteStatus, check_pose, c
 use super::scale::MetaRobot;
 use super::shared_policy::{Reply, SharedPolicy};
 use super::transfer::{VelocityBounds, transfer_observation, transfer_policy};
+use crate::escape::StallEscape;
 use crate::policy::NavPolicy;
 use dvnav_config::Config;
 use dvnav_sim::latency::{self, CommandLog, MAX_SCAN_AGE_S};
@@ -67,6 +68,10 @@ pub const DEFAULT_ROBOT_IDLE: Duration = Duration::from_secs(600);
 /// Forward passes [`DvstController::warm_up`] runs: the first pays the first-use costs, the
 /// next ones settle the allocator.
 const WARM_UP_PASSES: usize = 3;
+
+/// FNV-1a's offset basis and prime: a robot's stall-escape seed is the FNV-1a hash of its id.
+const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
+const FNV_PRIME: u64 = 0x0000_0100_0000_01b3;
 
 /// The model a controller drives with, as it reports it.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -213,6 +218,8 @@ pub struct ControllerInfo {
     pub robot_idle: Duration,
     /// The collision monitor's horizon (s; 0: off), [`DvstController::with_safety_horizon`].
     pub safety_horizon_s: f64,
+    /// The stall escape's delay (s; 0: off), [`DvstController::with_stall_escape`].
+    pub escape_after_s: f64,
 }
 
 /// Why a request was refused.
@@ -266,19 +273,27 @@ impl ControllerError {
 /// [`SharedPolicy`] of any policy, so that the controller need not name the policy's type.
 trait SharedAct: Send + Sync + std::fmt::Debug {
     fn set_batched(&self, on: bool);
-    fn act_blocking(&self, obs: Vec<f32>) -> Reply;
-    fn act(&self, obs: Vec<f32>) -> std::pin::Pin<Box<dyn Future<Output = Reply> + Send + '_>>;
+    fn act_blocking(&self, obs: Vec<f32>, noise: Option<[f32; 2]>) -> Reply;
+    fn act(
+        &self,
+        obs: Vec<f32>,
+        noise: Option<[f32; 2]>,
+    ) -> std::pin::Pin<Box<dyn Future<Output = Reply> + Send + '_>>;
 }
 
 impl<P: NavPolicy + Send> SharedAct for SharedPolicy<P> {
     fn set_batched(&self, on: bool) {
         SharedPolicy::set_batched(self, on)
     }
-    fn act_blocking(&self, obs: Vec<f32>) -> Reply {
-        SharedPolicy::act_blocking(self, obs)
+    fn act_blocking(&self, obs: Vec<f32>, noise: Option<[f32; 2]>) -> Reply {
+        SharedPolicy::act_blocking(self, obs, noise)
     }
-    fn act(&self, obs: Vec<f32>) -> std::pin::Pin<Box<dyn Future<Output = Reply> + Send + '_>> {
-        Box::pin(SharedPolicy::act(self, obs))
+    fn act(
+        &self,
+        obs: Vec<f32>,
+        noise: Option<[f32; 2]>,
+    ) -> std::pin::Pin<Box<dyn Future<Output = Reply> + Send + '_>> {
+        Box::pin(SharedPolicy::act(self, obs, noise))
     }
 }
 
@@ -297,6 +312,8 @@ struct Prepared {
     log: Arc<Mutex<CommandLog>>,
     /// The meta scan, kept for the collision monitor when it is on.
     monitor_scan: Option<Vec<f32>>,
+    /// ε for the stall escape's sampled action, `None` for the deterministic one.
+    noise: Option<[f32; 2]>,
 }
 
 /// A meta agent driving many varied robots through DVST, shared by the requests of a service.
@@ -311,6 +328,8 @@ pub struct DvstController {
     /// The commands each robot was sent lately (`scan_age_s`), bounded and expiring like
     /// `robots`; times are seconds since `clock`.
     command_logs: Mutex<RobotTable<Arc<Mutex<CommandLog>>>>,
+    /// The stall escape's progress watch of each robot driving mapless, when it is on.
+    escapes: Mutex<RobotTable<Arc<Mutex<StallEscape>>>>,
     clock: Instant,
     /// The subgoal rule's constants: the model's `env.subgoals`, else the defaults.
     subgoals: SubgoalConfig,
@@ -334,6 +353,8 @@ pub struct DvstController {
     commands: AtomicU64,
     /// The collision monitor's horizon (s; 0: off), [`DvstController::with_safety_horizon`].
     safety_horizon_s: f64,
+    /// The stall escape's delay (s; 0: off), [`DvstController::with_stall_escape`].
+    escape_after_s: f64,
 }
 
 impl DvstController {
@@ -373,6 +394,7 @@ impl DvstController {
             robots: Mutex::new(RobotTable::new(DEFAULT_MAX_ROBOTS, DEFAULT_ROBOT_IDLE)),
             routes: Mutex::new(RobotTable::new(DEFAULT_MAX_ROBOTS, DEFAULT_ROBOT_IDLE)),
             command_logs: Mutex::new(RobotTable::new(DEFAULT_MAX_ROBOTS, DEFAULT_ROBOT_IDLE)),
+            escapes: Mutex::new(RobotTable::new(DEFAULT_MAX_ROBOTS, DEFAULT_ROBOT_IDLE)),
             clock: Instant::now(),
             subgoals: cfg.env.subgoals.clone().unwrap_or_default(),
             map: Mutex::new(None),
@@ -389,6 +411,7 @@ impl DvstController {
             model,
             commands: AtomicU64::new(0),
             safety_horizon_s: 0.0,
+            escape_after_s: 0.0,
         })
     }
 
@@ -401,6 +424,8 @@ impl DvstController {
         *self.routes.lock().unwrap_or_else(PoisonError::into_inner) =
             RobotTable::new(max_robots, idle);
         *self.command_logs.lock().unwrap_or_else(PoisonError::into_inner) =
+            RobotTable::new(max_robots, idle);
+        *self.escapes.lock().unwrap_or_else(PoisonError::into_inner) =
             RobotTable::new(max_robots, idle);
         Ok(self)
     }
@@ -415,6 +440,22 @@ impl DvstController {
             "the collision monitor's horizon must be a time of at least 0 s, not {horizon_s}"
         );
         self.safety_horizon_s = horizon_s;
+        Ok(self)
+    }
+
+    /// The stall escape ([`crate::escape`], as `dvnav eval --escape-after`) for robots driving
+    /// mapless (no route): one that has come no closer to its goal for `after_s` seconds (by
+    /// half the meta robot's radius in the meta frame, μ times that in its own) is sent the
+    /// meta policy's sampled action for as long, then the deterministic one again. A goal
+    /// distance that jumps further than the robot could drive since its last call is a new
+    /// goal. Each robot's noise is seeded by its id, so a replayed log gives the same
+    /// commands. 0 turns it off.
+    pub fn with_stall_escape(mut self, after_s: f64) -> anyhow::Result<Self> {
+        anyhow::ensure!(
+            after_s.is_finite() && after_s >= 0.0,
+            "the stall escape's delay must be a time of at least 0 s (0: off), not {after_s}"
+        );
+        self.escape_after_s = after_s;
         Ok(self)
     }
 
@@ -441,7 +482,7 @@ impl DvstController {
         for _ in 0..WARM_UP_PASSES {
             let (v, omega) = self
                 .policy
-                .act_blocking(obs.clone())
+                .act_blocking(obs.clone(), None)
                 .map_err(|e| ControllerError::Policy(anyhow::Error::msg(e)))?;
             if !(v.is_finite() && omega.is_finite()) {
                 return Err(ControllerError::Policy(anyhow::anyhow!(
@@ -467,7 +508,7 @@ impl DvstController {
     /// waits without blocking its thread).
     pub fn act(&self, input: &RobotInput) -> Result<Command, ControllerError> {
         let mut p = self.prepare(input)?;
-        let reply = p.meta_obs.take().map(|obs| self.policy.act_blocking(obs));
+        let reply = p.meta_obs.take().map(|obs| self.policy.act_blocking(obs, p.noise));
         self.finish(p, reply)
     }
 
@@ -477,7 +518,7 @@ impl DvstController {
         let mut p = self.prepare(input)?;
         let reply = match p.meta_obs.take() {
             None => None,
-            Some(obs) => Some(self.policy.act(obs).await),
+            Some(obs) => Some(self.policy.act(obs, p.noise).await),
         };
         self.finish(p, reply)
     }
@@ -548,6 +589,7 @@ impl DvstController {
                 shim,
                 log,
                 monitor_scan: None,
+                noise: None,
             });
         }
         obs[b + GOAL_DISTANCE] = goal_distance as f32;
@@ -557,6 +599,13 @@ impl DvstController {
         let mut meta_obs = vec![0.0f32; obs.len()];
         transfer_observation(&obs, b, state.mu, Some(self.scan_range), &mut meta_obs);
         let monitor_scan = (self.safety_horizon_s > 0.0).then(|| meta_obs[..b].to_vec());
+        // A robot on a route replans when it stalls; the escape is for mapless driving, whose
+        // goal distance is its progress (a route's subgoal stays a lookahead away).
+        let noise = if self.escape_after_s > 0.0 && status.is_none() {
+            self.escape_noise(input.robot_id, now, goal_distance, &state)?
+        } else {
+            None
+        };
         Ok(Prepared {
             state,
             filled_beams,
@@ -565,7 +614,36 @@ impl DvstController {
             shim: None,
             log,
             monitor_scan,
+            noise,
         })
+    }
+
+    /// The stall escape's noise for robot `robot_id`, `goal_distance_m` (its own metres) from
+    /// its goal `now`.
+    fn escape_noise(
+        &self,
+        robot_id: &str,
+        now: Instant,
+        goal_distance_m: f64,
+        state: &FootprintState,
+    ) -> Result<Option<[f32; 2]>, ControllerError> {
+        let progress_m = 0.5 * self.meta.bounding_radius() * state.mu;
+        let escape = self.escapes.lock().unwrap_or_else(PoisonError::into_inner).touch(
+            robot_id,
+            now,
+            || {
+                let seed = robot_id
+                    .bytes()
+                    .fold(FNV_OFFSET, |h, b| (h ^ b as u64).wrapping_mul(FNV_PRIME));
+                let e = StallEscape::new(self.escape_after_s, progress_m, seed)
+                    .expect("the delay was checked by with_stall_escape, the progress is > 0");
+                Arc::new(Mutex::new(e))
+            },
+        )?;
+        let mut escape = escape.lock().unwrap_or_else(PoisonError::into_inner);
+        let t = now.duration_since(self.clock).as_secs_f64();
+        escape.follow_goal(t, goal_distance_m, state.bounds.v_max);
+        Ok(escape.noise(t, goal_distance_m))
     }
 
     /// `scan` (the robot's beams in its own metres) as it reads after the robot `moved`.
@@ -795,6 +873,7 @@ impl DvstController {
             max_robots,
             robot_idle,
             safety_horizon_s: self.safety_horizon_s,
+            escape_after_s: self.escape_after_s,
         }
     }
 

@@ -32,6 +32,8 @@ const GONE: &str = "the policy's answer was lost (the policy panicked)";
 
 struct Job {
     obs: Vec<f32>,
+    /// ε for a sampled action (the stall escape), `None` for the deterministic one.
+    noise: Option<[f32; 2]>,
     reply: ReplyTo,
 }
 
@@ -91,13 +93,14 @@ impl<P: NavPolicy> SharedPolicy<P> {
         self.batched.store(on, std::sync::atomic::Ordering::Relaxed);
     }
 
-    /// The command for one observation of the policy's length, awaited.
+    /// The command for one observation of the policy's length, awaited: sampled with noise ε
+    /// if given ([`NavPolicy::act_batch_noisy`]), else deterministic.
     ///
     /// # Panics
     /// If `obs` is not one observation long.
-    pub async fn act(&self, obs: Vec<f32>) -> Reply {
+    pub async fn act(&self, obs: Vec<f32>, noise: Option<[f32; 2]>) -> Reply {
         let (reply, answer) = oneshot::channel();
-        self.queue_and_combine(obs, ReplyTo::Async(reply));
+        self.queue_and_combine(obs, noise, ReplyTo::Async(reply));
         answer.await.unwrap_or_else(|_| Err(GONE.into()))
     }
 
@@ -105,9 +108,9 @@ impl<P: NavPolicy> SharedPolicy<P> {
     ///
     /// # Panics
     /// If `obs` is not one observation long.
-    pub fn act_blocking(&self, obs: Vec<f32>) -> Reply {
+    pub fn act_blocking(&self, obs: Vec<f32>, noise: Option<[f32; 2]>) -> Reply {
         let (reply, answer) = mpsc::sync_channel(1);
-        self.queue_and_combine(obs, ReplyTo::Blocking(reply));
+        self.queue_and_combine(obs, noise, ReplyTo::Blocking(reply));
         answer.recv().unwrap_or_else(|_| Err(GONE.into()))
     }
 
@@ -120,9 +123,9 @@ impl<P: NavPolicy> SharedPolicy<P> {
     /// No job is stranded: a caller that fails to take the policy queued its job before
     /// trying, so the holder either drains it or, having released the policy, sees it in the
     /// queue and tries again.
-    fn queue_and_combine(&self, obs: Vec<f32>, reply: ReplyTo) {
+    fn queue_and_combine(&self, obs: Vec<f32>, noise: Option<[f32; 2]>, reply: ReplyTo) {
         assert_eq!(obs.len(), self.obs_dim, "one observation");
-        self.queue().push(Job { obs, reply });
+        self.queue().push(Job { obs, noise, reply });
         loop {
             let mut policy = match self.policy.try_lock() {
                 Ok(p) => p,
@@ -130,6 +133,7 @@ impl<P: NavPolicy> SharedPolicy<P> {
                 Err(std::sync::TryLockError::WouldBlock) => return,
             };
             let mut obs = Vec::new();
+            let mut noise = Vec::new();
             loop {
                 let batch: Vec<Job> = {
                     let mut q = self.queue();
@@ -142,10 +146,13 @@ impl<P: NavPolicy> SharedPolicy<P> {
                 if self.batched.load(std::sync::atomic::Ordering::Relaxed) {
                     obs.clear();
                     batch.iter().for_each(|j| obs.extend_from_slice(&j.obs));
-                    answer(&mut *policy, &obs, batch);
+                    noise.clear();
+                    noise.extend(batch.iter().map(|j| j.noise));
+                    answer(&mut *policy, &obs, &noise, batch);
                 } else {
-                    for Job { obs, reply } in batch {
-                        answer(&mut *policy, &obs, vec![Job { obs: Vec::new(), reply }]);
+                    for Job { obs, noise, reply } in batch {
+                        let job = Job { obs: Vec::new(), noise, reply };
+                        answer(&mut *policy, &obs, &[noise], vec![job]);
                     }
                 }
             }
@@ -157,9 +164,15 @@ impl<P: NavPolicy> SharedPolicy<P> {
     }
 }
 
-/// One forward pass for `batch`, each job answered.
-fn answer<P: NavPolicy>(policy: &mut P, obs: &[f32], batch: Vec<Job>) {
-    match policy.act_batch(obs) {
+/// One forward pass for `batch`, each job answered (deterministic rows as `act_batch` gives
+/// them: the noisy path leaves them bit-identical).
+fn answer<P: NavPolicy>(policy: &mut P, obs: &[f32], noise: &[Option<[f32; 2]>], batch: Vec<Job>) {
+    let commands = if noise.iter().all(Option::is_none) {
+        policy.act_batch(obs)
+    } else {
+        policy.act_batch_noisy(obs, noise)
+    };
+    match commands {
         Ok(commands) if commands.len() == batch.len() => {
             for (job, c) in batch.into_iter().zip(commands) {
                 job.reply.send(Ok(c));
@@ -210,7 +223,7 @@ mod tests {
     fn concurrent_callers_share_forward_passes_and_each_gets_its_own_answer() {
         let passes = Arc::new(AtomicUsize::new(0));
         let p = Arc::new(SharedPolicy::batched(Slow { passes: passes.clone() }));
-        assert_eq!(p.act_blocking(vec![7.0; 5]), Ok((7.0, 1.0)), "alone: its own pass");
+        assert_eq!(p.act_blocking(vec![7.0; 5], None), Ok((7.0, 1.0)), "alone: its own pass");
         // 16 threads x 25 calls at once: every call answered with its own value (none
         // stranded, none swapped), in fewer passes than calls.
         let callers: Vec<_> = (0..16)
@@ -220,7 +233,7 @@ mod tests {
                     (0..25)
                         .map(|k| {
                             let v = (t * 100 + k) as f32;
-                            let got = p.act_blocking(vec![v; 5]).unwrap();
+                            let got = p.act_blocking(vec![v; 5], None).unwrap();
                             assert_eq!(got.0, f64::from(v));
                             got.1
                         })
@@ -234,9 +247,9 @@ mod tests {
         assert!(passes_now < 300, "{passes_now} passes for 400 concurrent calls");
         assert!(sizes.iter().any(|&n| n > 1.0), "batches formed");
         // A failing pass fails the observations in it, and the policy goes on; awaited too.
-        assert_eq!(p.act_blocking(vec![-1.0; 5]), Err("a negative first value".into()));
+        assert_eq!(p.act_blocking(vec![-1.0; 5], None), Err("a negative first value".into()));
         let rt = tokio::runtime::Builder::new_current_thread().build().unwrap();
-        assert_eq!(rt.block_on(p.act(vec![2.0; 5])), Ok((2.0, 1.0)));
+        assert_eq!(rt.block_on(p.act(vec![2.0; 5], None)), Ok((2.0, 1.0)));
     }
 
     #[test]
@@ -254,7 +267,7 @@ mod tests {
                     let p = p.clone();
                     std::thread::spawn(move || {
                         (0..10)
-                            .map(|_| p.act_blocking(vec![t as f32; 5]).unwrap().1)
+                            .map(|_| p.act_blocking(vec![t as f32; 5], None).unwrap().1)
                             .fold(0.0, f64::max)
                     })
                 })
@@ -284,17 +297,20 @@ mod tests {
         let mut policy = p.policy.lock().unwrap();
         let run = |policy: &mut crate::policy::MetaAgent, others: usize, batched: bool| {
             let (tx, rx) = mpsc::sync_channel(1);
-            let mut jobs = vec![Job { obs: obs(0), reply: ReplyTo::Blocking(tx) }];
+            let mut jobs = vec![Job { obs: obs(0), noise: None, reply: ReplyTo::Blocking(tx) }];
             for k in 1..=others {
                 let (tx, _) = mpsc::sync_channel(1);
-                jobs.push(Job { obs: obs(k), reply: ReplyTo::Blocking(tx) });
+                // The others sampled or not: the robot's deterministic row stays as it is.
+                let noise = (k % 2 == 0).then_some([0.5, -0.5]);
+                jobs.push(Job { obs: obs(k), noise, reply: ReplyTo::Blocking(tx) });
             }
             if batched {
                 let all: Vec<f32> = jobs.iter().flat_map(|j| j.obs.clone()).collect();
-                answer(policy, &all, jobs);
+                let noise: Vec<_> = jobs.iter().map(|j| j.noise).collect();
+                answer(policy, &all, &noise, jobs);
             } else {
-                for Job { obs, reply } in jobs {
-                    answer(policy, &obs, vec![Job { obs: Vec::new(), reply }]);
+                for Job { obs, noise, reply } in jobs {
+                    answer(policy, &obs, &[noise], vec![Job { obs: Vec::new(), noise, reply }]);
                 }
             }
             rx.recv().unwrap().unwrap()

@@ -533,3 +533,73 @@ fn the_collision_monitor_slows_a_robot_short_of_an_obstacle_ahead() {
         assert!(e.contains("horizon"), "{e}");
     }
 }
+
+/// A meta policy of 3 beams that stands still when asked for its deterministic action and
+/// answers (0.3 m/s, ε₀) for a sampled one.
+struct FrozenUnlessNoisy;
+
+impl NavPolicy for FrozenUnlessNoisy {
+    fn beams(&self) -> usize {
+        3
+    }
+    fn act(&mut self, _obs: &[f32]) -> anyhow::Result<(f64, f64)> {
+        Ok((0.0, 0.0))
+    }
+    fn velocity_bounds(&self) -> (f64, f64) {
+        (0.5, 1.5)
+    }
+    fn act_batch_noisy(
+        &mut self,
+        obs: &[f32],
+        noise: &[Option<[f32; 2]>],
+    ) -> anyhow::Result<Vec<(f64, f64)>> {
+        assert_eq!(obs.len(), noise.len() * obs_dim(3));
+        Ok(noise
+            .iter()
+            .map(|n| n.map_or((0.0, 0.0), |e| (0.3, (e[0] as f64).clamp(-1.5, 1.5))))
+            .collect())
+    }
+}
+
+/// The stall escape: a robot that makes no progress gets the sampled action after the delay;
+/// a goal distance that jumps further than it could drive is a new goal, watched afresh; Info
+/// reports the delay, and a bad one is refused.
+#[test]
+fn the_stall_escape_samples_for_a_robot_that_makes_no_progress() {
+    let circle = "[[parts]]\nshape = \"circle\"\ncenter = [0, 0]\nradius = 0.2\n";
+    let ctl = DvstController::new(
+        FrozenUnlessNoisy,
+        &three_beam_config(),
+        model_id(),
+        circle,
+        "t.toml",
+        None,
+    )
+    .unwrap()
+    .with_stall_escape(0.05)
+    .unwrap();
+    assert_eq!(ctl.info("r").escape_after_s, 0.05);
+    let scan = [10.0f32; 3];
+    let act = |d: f64| {
+        let mut input = RobotInput::new(Scan::Meta(&scan), d, 0.0, 0.0, 0.0);
+        input.robot_id = "r";
+        ctl.act(&input).unwrap()
+    };
+    assert_eq!(act(2.0).v, 0.0, "deterministic while the watch runs");
+    std::thread::sleep(Duration::from_millis(70));
+    assert_eq!(act(2.0).v, 0.3, "no progress for longer than the delay: sampled");
+    // A goal 6 m further at once: a new goal, deterministic again.
+    assert_eq!(act(8.0).v, 0.0);
+    // Another robot has a watch of its own.
+    let mut other = RobotInput::new(Scan::Meta(&scan), 2.0, 0.0, 0.0, 0.0);
+    other.robot_id = "other";
+    assert_eq!(ctl.act(&other).unwrap().v, 0.0);
+    // Off by default.
+    let (plain, _) = counter_controller(circle);
+    assert_eq!(plain.info("").escape_after_s, 0.0);
+    for bad in [-1.0, f64::NAN, f64::INFINITY] {
+        let (ctl, _) = counter_controller(circle);
+        let e = ctl.with_stall_escape(bad).unwrap_err().to_string();
+        assert!(e.contains("stall escape") && e.contains("at least 0 s"), "{e}");
+    }
+}
