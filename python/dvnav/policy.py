@@ -48,16 +48,30 @@ class Policy:
             )
         )
 
-    def __call__(self, obs) -> np.ndarray:
-        return self.actions(obs)
+    def __call__(self, obs, noise=None) -> np.ndarray:
+        return self.actions(obs, noise)
 
-    def actions(self, obs) -> np.ndarray:
-        """Normalized actions, shape (2,) for one observation or (n, 2) for n."""
-        return self._run(self._core.actions, obs)
+    def actions(self, obs, noise=None) -> np.ndarray:
+        """Normalized actions, shape (2,) for one observation or (n, 2) for n. ``noise``: see
+        :meth:`velocities`."""
+        return self._run(self._core.actions, obs, noise)
 
-    def velocities(self, obs) -> np.ndarray:
-        """Commands (v m/s, ω rad/s), shape (2,) or (n, 2)."""
-        return self._run(self._core.velocities, obs)
+    def velocities(self, obs, noise=None) -> np.ndarray:
+        """Commands (v m/s, ω rad/s), shape (2,) or (n, 2). ``noise``: ε = (ε_v, ε_ω) to sample
+        the policy's own distribution, tanh(μ + σ·ε), instead of its deterministic action: what
+        :meth:`escape`'s watch returns (None: deterministic); for a batch, one pair or None per
+        row."""
+        return self._run(self._core.velocities, obs, noise)
+
+    def escape(self, after_s: float = 3.0, seed: int = 0):
+        """The stall escape's watch for one robot (``dvnav eval --escape-after``, ``dvnav serve
+        --escape-after``): each cycle ``eps = escape.noise(t, goal_distance)`` is None while the
+        robot makes progress and, after ``after_s`` seconds in which its goal distance has not
+        come down by half its radius, the noise for :meth:`velocities` for ``after_s`` seconds.
+        ``escape.reset()`` on a new goal. 3 s was best on tuning rooms; it frees big robots
+        frozen in tight clutter (docs/results.md, "The stall escape")."""
+        progress_m = 0.5 * self.env_config["robot_radius"] * self.mu
+        return _core.StallEscape(float(after_s), progress_m, int(seed))
 
     def carry_forward(self, obs, commands, dt: float | None = None) -> np.ndarray:
         """Latency compensation: ``obs`` (one observation) was taken before the robot drove
@@ -109,13 +123,14 @@ class Policy:
         x[-4], x[-3] = step["goal_distance"], step["goal_angle"]
         return self.velocities(x), step
 
-    def _run(self, fn, obs) -> np.ndarray:
+    def _run(self, fn, obs, noise=None) -> np.ndarray:
         x = np.ascontiguousarray(obs, dtype=np.float32)
         if x.ndim == 1:
-            return fn(x.reshape(1, -1))[0]
+            n = None if noise is None else _noise_rows([noise], 1)
+            return fn(x.reshape(1, -1), n)[0]
         if x.ndim != 2:
             raise ValueError(f"observations have shape {x.shape}; expected (obs_dim,) or (n, obs_dim)")
-        return fn(x)
+        return fn(x, None if noise is None else _noise_rows(noise, len(x)))
 
     @property
     def obs_dim(self) -> int:
@@ -153,3 +168,12 @@ class Policy:
         LiDAR, as ``dvnav eval`` builds it (``EnvConfig::clean`` in Rust). The same seed gives
         the same episodes as ``dvnav eval --seed``."""
         return json.loads(self._core.eval_env_config)
+
+
+def _noise_rows(noise, n: int) -> np.ndarray:
+    """(n, 2) float32: each row a pair ε or NaN for None (a deterministic row)."""
+    rows = [(np.nan, np.nan) if e is None else tuple(e) for e in noise]
+    out = np.ascontiguousarray(rows, dtype=np.float32)
+    if out.shape != (n, 2):
+        raise ValueError(f"noise has shape {out.shape}; expected ({n}, 2): one pair or None per observation")
+    return out

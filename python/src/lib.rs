@@ -11,11 +11,13 @@
 //!   straight into the numpy arrays returned.
 //! - [`policy::Policy`]: a trained meta agent, alone or in DVST for a footprint file.
 //! - [`route::Route`]: a path followed by subgoals, as `dvnav serve`'s `SetRoute` follows it.
+//! - [`escape::StallEscape`]: the stall escape's progress watch, one per robot.
 //!
 //! Errors in what the caller gave (a room name, a config key, a footprint file, an array's
 //! shape) are `ValueError`s that say what was wrong.
 
 mod env;
+mod escape;
 mod policy;
 mod route;
 mod setup;
@@ -29,6 +31,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<vec_env::VecEnv>()?;
     m.add_class::<policy::Policy>()?;
     m.add_class::<route::Route>()?;
+    m.add_class::<escape::StallEscape>()?;
     m.add_function(wrap_pyfunction!(setup::room_names, m)?)?;
     m.add_function(wrap_pyfunction!(setup::default_env_config, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;

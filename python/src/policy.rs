@@ -77,25 +77,31 @@ impl Policy {
         })
     }
 
-    /// Commands (v m/s, ω rad/s) for observations `obs` (n x obs_dim), one row each.
+    /// Commands (v m/s, ω rad/s) for observations `obs` (n x obs_dim), one row each; `noise`
+    /// (n x 2): ε for the rows sampled from the policy's distribution (the stall escape), NaN
+    /// rows deterministic.
+    #[pyo3(signature = (obs, noise=None))]
     fn velocities<'py>(
         &mut self,
         py: Python<'py>,
         obs: PyReadonlyArray2<'py, f32>,
+        noise: Option<PyReadonlyArray2<'py, f32>>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let commands = self.commands(py, &obs)?;
+        let commands = self.commands(py, &obs, noise.as_ref())?;
         let flat: Vec<f64> = commands.iter().flat_map(|&(v, w)| [v, w]).collect();
         numpy::PyArray1::from_vec(py, flat).reshape([commands.len(), 2])
     }
 
     /// The same commands as normalized actions in [−1, 1]² (n x 2), the action space of
     /// environments with the run's env config.
+    #[pyo3(signature = (obs, noise=None))]
     fn actions<'py>(
         &mut self,
         py: Python<'py>,
         obs: PyReadonlyArray2<'py, f32>,
+        noise: Option<PyReadonlyArray2<'py, f32>>,
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        let commands = self.commands(py, &obs)?;
+        let commands = self.commands(py, &obs, noise.as_ref())?;
         let flat: Vec<f32> =
             commands.iter().flat_map(|&(v, w)| velocity_to_action(v, w, &self.env)).collect();
         numpy::PyArray1::from_vec(py, flat).reshape([commands.len(), 2])
@@ -194,6 +200,7 @@ impl Policy {
         &mut self,
         py: Python<'_>,
         obs: &PyReadonlyArray2<'_, f32>,
+        noise: Option<&PyReadonlyArray2<'_, f32>>,
     ) -> PyResult<Vec<(f64, f64)>> {
         let d = self.policy.obs_dim();
         if obs.shape()[1] != d {
@@ -203,8 +210,31 @@ impl Policy {
             )));
         }
         let data = obs.as_slice().map_err(value_error)?;
+        let noise: Option<Vec<Option<[f32; 2]>>> = match noise {
+            None => None,
+            Some(n) => {
+                if n.shape() != [obs.shape()[0], 2] {
+                    return Err(value_error(anyhow::anyhow!(
+                        "noise has shape {:?}; expected ({}, 2), one (ε_v, ε_ω) per observation                          (NaN for a deterministic row)",
+                        n.shape(),
+                        obs.shape()[0]
+                    )));
+                }
+                let flat = n.as_slice().map_err(value_error)?;
+                Some(
+                    flat.chunks_exact(2)
+                        .map(|e| (e[0].is_finite() && e[1].is_finite()).then_some([e[0], e[1]]))
+                        .collect(),
+                )
+            }
+        };
         let policy = &mut self.policy;
-        let mut commands = py.detach(|| policy.act_batch(data)).map_err(value_error)?;
+        let mut commands = py
+            .detach(|| match &noise {
+                Some(n) => policy.act_batch_noisy(data, n),
+                None => policy.act_batch(data),
+            })
+            .map_err(value_error)?;
         if self.safety_horizon_s > 0.0 {
             // In the robot's own frame: DVST scales the meta robot's scan, disc and speed by
             // the same μ, so the monitor on the robot's scan, the meta disc times μ and the

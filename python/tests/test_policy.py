@@ -233,3 +233,45 @@ def test_the_collision_monitor_in_dvst_is_the_meta_robots_scaled():
 def test_a_bad_safety_horizon_is_refused(horizon):
     with pytest.raises(ValueError, match="safety_horizon is"):
         dvnav.Policy.load(str(MODEL), safety_horizon=horizon)
+
+
+def test_noise_samples_the_policys_distribution_row_by_row():
+    policy = dvnav.Policy.load(str(MODEL))
+    obs = observations(4)
+    det = policy.velocities(obs)
+    assert np.array_equal(policy.velocities(obs, noise=[None] * 4), det)
+    # ε = 0 is the mean: tanh(μ), the deterministic action (to float rounding).
+    assert np.allclose(policy.velocities(obs[0], noise=(0.0, 0.0)), det[0], atol=1e-5)
+    noisy = policy.velocities(obs, noise=[None, (2.0, -2.0), None, (-2.0, 2.0)])
+    assert np.array_equal(noisy[[0, 2]], det[[0, 2]]), "rows without noise stay as they are"
+    assert not np.allclose(noisy[1], det[1]) and not np.allclose(noisy[3], det[3])
+    v_max, w_max = policy.velocity_bounds
+    assert ((0 <= noisy[:, 0]) & (noisy[:, 0] <= v_max)).all() and (np.abs(noisy[:, 1]) <= w_max).all()
+    # The same noise, the same command: the sample is a function of ε.
+    again = policy.velocities(obs, noise=[None, (2.0, -2.0), None, (-2.0, 2.0)])
+    assert np.array_equal(again, noisy)
+    with pytest.raises(ValueError, match="noise"):
+        policy.velocities(obs, noise=[None] * 3)
+
+
+def test_the_stall_escape_asks_for_noise_after_the_delay_and_forgets_on_a_new_goal():
+    policy = dvnav.Policy.load(str(MODEL), footprint=str(ROOT / "footprints/circle-0.5.toml"))
+    escape = policy.escape(after_s=1.0, seed=3)
+    dt = 0.2
+    # Frozen 4 m from the goal: deterministic for 1 s, then noise for 1 s, then watched again.
+    eps = [escape.noise(k * dt, 4.0) for k in range(15)]
+    assert all(e is None for e in eps[:5]) and all(e is not None for e in eps[5:10])
+    assert all(e is None for e in eps[10:15])
+    # Progress of half the robot's radius (0.25 m for R = 0.5) restarts the watch; 0.2 m does not.
+    escape.reset()
+    assert escape.noise(0.0, 4.0) is None
+    assert escape.noise(0.8, 3.8) is None and escape.noise(1.0, 3.8) is not None
+    escape.reset()
+    assert escape.noise(0.0, 4.0) is None
+    assert escape.noise(0.8, 3.7) is None and escape.noise(1.0, 3.7) is None
+    # Seeded: the same watch replays the same noise.
+    a, b = policy.escape(1.0, seed=5), policy.escape(1.0, seed=5)
+    assert [a.noise(k * dt, 4.0) for k in range(10)] == [b.noise(k * dt, 4.0) for k in range(10)]
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="delay"):
+            policy.escape(after_s=bad)
