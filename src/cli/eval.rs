@@ -113,7 +113,8 @@ pub struct EvalArgs {
     /// closer to its goal for this many seconds (by half its radius: 0.1 m for the meta robot)
     /// samples its policy's own noise, tanh(μ + σ·ε), for as long, then drives
     /// deterministically again, and escapes again after as long without progress. Seeded per
-    /// episode. 3 s was best on tuning rooms. 0: off (the deterministic policy throughout).
+    /// episode. 3 s was best on tuning rooms. A robot following a planned path (`--subgoals
+    /// planner`) replans after a stall instead. 0: off (the deterministic policy throughout).
     #[arg(long, value_name = "S", default_value_t = 0.0)]
     pub escape_after: f64,
     /// Gaussian actuation noise σ on the executed command: `V,W` (m/s, rad/s).

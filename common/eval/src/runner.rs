@@ -69,7 +69,8 @@ pub struct RunOptions {
     /// it. 0: off.
     pub safety_horizon_s: f64,
     /// The stall escape ([`dvnav_nav::escape`]): after this many seconds without progress
-    /// towards its goal a robot samples its policy's own noise for as long. 0: off.
+    /// towards its goal a robot samples its policy's own noise for as long. Not for a robot
+    /// that follows a planned path (`env.subgoals`): it replans after a stall. 0: off.
     pub escape_after_s: f64,
 }
 
@@ -208,6 +209,11 @@ pub fn run_jobs(
                 noise.clear();
                 noise.extend(group.iter().map(|&k| {
                     let s = &mut slots[k];
+                    // A robot following a planned path replans after a stall instead, as in
+                    // `dvnav serve` (and its subgoal stays a lookahead away).
+                    if s.env.subgoal().is_some() {
+                        return None;
+                    }
                     let t = s.env.steps() as f64 * s.env.config().dt;
                     let d = s.env.goal_distance();
                     s.escape.as_mut().and_then(|e| e.noise(t, d))
@@ -488,6 +494,18 @@ mod tests {
         };
         let (outcome, steps, noisy) = run(0.0);
         assert_eq!((outcome, steps, noisy), (Outcome::Timeout, cfg.env.max_steps, 0));
+        // Following a planned path, the robot replans instead: never an escape.
+        let mut planned = cfg.clone();
+        planned.env.subgoals = Some(Default::default());
+        let job = Job {
+            env: NavEnv::new(room.clone(), &planned.env, 3),
+            plan: Plan::Route { start: Pose2::new(0.0, 0.0, 0.0), goals: vec![[2.0, 0.0]] },
+            policy: 0,
+        };
+        let mut p = FrozenUnlessNoisy { inner: pid(&planned), noisy_cycles: 0 };
+        let opts = RunOptions { escape_after_s: 2.0, ..Default::default() };
+        let out = run_jobs(vec![job], &mut [&mut p], opts, &mut |_| Ok(())).unwrap();
+        assert_eq!((out[0][0].outcome, p.noisy_cycles), (Outcome::Timeout, 0));
         let (outcome, steps, noisy) = run(2.0);
         assert_eq!(outcome, Outcome::Success);
         // Frozen for 10 cycles (2 s), escaping for 10 (~1 m at 0.5 m/s), frozen until 2 s after
