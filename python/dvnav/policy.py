@@ -70,8 +70,8 @@ class Policy:
         come down by half its radius, the noise for :meth:`velocities` for ``after_s`` seconds.
         ``escape.reset()`` on a new goal. 3 s was best on tuning rooms; it frees big robots
         frozen in tight clutter (docs/results.md, "The stall escape")."""
-        progress_m = 0.5 * self.env_config["robot_radius"] * self.mu
-        return _core.StallEscape(float(after_s), progress_m, int(seed))
+        radius_m = self.env_config["robot_radius"] * self.mu
+        return _core.StallEscape.for_radius(float(after_s), radius_m, int(seed))
 
     def carry_forward(self, obs, commands, dt: float | None = None) -> np.ndarray:
         """Latency compensation: ``obs`` (one observation) was taken before the robot drove

@@ -21,6 +21,16 @@ impl StallEscape {
         Ok(Self { inner })
     }
 
+    /// An escape for a robot of (bounding) radius `radius_m`: progress is half of it, as in
+    /// `dvnav eval` and `dvnav serve`.
+    #[staticmethod]
+    #[pyo3(signature = (after_s, radius_m, seed=0))]
+    fn for_radius(after_s: f64, radius_m: f64, seed: u64) -> PyResult<Self> {
+        let inner = dvnav_nav::escape::StallEscape::for_radius(after_s, radius_m, seed)
+            .map_err(value_error)?;
+        Ok(Self { inner })
+    }
+
     /// The cycle at `t_s` seconds, `goal_distance_m` from the goal: ε (two floats) while an
     /// escape runs, else None.
     fn noise(&mut self, t_s: f64, goal_distance_m: f64) -> Option<(f32, f32)> {

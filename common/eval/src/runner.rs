@@ -77,11 +77,6 @@ pub struct RunOptions {
 /// Folded with a job's index into its stall escape's seed.
 const ESCAPE_SEED: u64 = 0x657363_61706521;
 
-/// The goal-distance progress that counts for the stall escape, as a share of the robot's
-/// (bounding) radius: 0.1 m for the 0.2 m meta robot, and a robot through DVST must come as
-/// much closer as its size scales.
-pub const ESCAPE_PROGRESS_RADII: f64 = 0.5;
-
 impl Default for RunOptions {
     fn default() -> Self {
         Self { window: 64, samples: false, safety_horizon_s: 0.0, escape_after_s: 0.0 }
@@ -128,9 +123,12 @@ impl Slot {
         let recorder = Recorder::begin(&env, opts.samples);
         // Seeded by the job: the same jobs replay the same escapes.
         let escape = (opts.escape_after_s > 0.0).then(|| {
-            let progress = ESCAPE_PROGRESS_RADII * env.robot_radius();
-            StallEscape::new(opts.escape_after_s, progress, ESCAPE_SEED ^ job as u64)
-                .expect("escape settings checked by run_jobs")
+            StallEscape::for_radius(
+                opts.escape_after_s,
+                env.robot_radius(),
+                ESCAPE_SEED ^ job as u64,
+            )
+            .expect("escape settings checked by run_jobs")
         });
         Ok(Slot { job, env, plan, policy, leg: 0, recorder, legs: Vec::new(), escape })
     }
@@ -150,7 +148,7 @@ pub fn run_jobs(
 ) -> anyhow::Result<Vec<Vec<EpisodeResult>>> {
     anyhow::ensure!(opts.window > 0, "the evaluation window must hold at least one job");
     if opts.escape_after_s != 0.0 {
-        StallEscape::new(opts.escape_after_s, ESCAPE_PROGRESS_RADII, 0)?;
+        StallEscape::for_radius(opts.escape_after_s, 1.0, 0)?;
     }
     for (i, j) in jobs.iter().enumerate() {
         let p = policies.get(j.policy).ok_or_else(|| {

@@ -22,6 +22,10 @@ use rand::{Rng, SeedableRng};
 use rand_distr::StandardNormal;
 use rand_pcg::Pcg64Mcg;
 
+/// The progress that counts, as a share of the robot's (bounding) radius: 0.1 m for the 0.2 m
+/// meta robot, and a robot through DVST must come as much closer as its size scales.
+pub const PROGRESS_RADII: f64 = 0.5;
+
 /// Progress watch and noise source of one robot.
 #[derive(Clone, Debug)]
 pub struct StallEscape {
@@ -61,6 +65,12 @@ impl StallEscape {
             eps: [0.0; 2],
             rng: Pcg64Mcg::seed_from_u64(seed),
         })
+    }
+
+    /// An escape for a robot of (bounding) radius `radius_m`: progress is [`PROGRESS_RADII`]
+    /// of it.
+    pub fn for_radius(after_s: f64, radius_m: f64, seed: u64) -> anyhow::Result<Self> {
+        Self::new(after_s, PROGRESS_RADII * radius_m, seed)
     }
 
     /// A new goal: forget the progress seen (the generator goes on).

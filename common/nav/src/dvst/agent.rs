@@ -127,16 +127,9 @@ impl<P: NavPolicy> NavPolicy for Dvst<P> {
     }
 
     fn act(&mut self, obs: &[f32]) -> anyhow::Result<(f64, f64)> {
-        let beams = self.meta.beams();
-        let d = obs_dim(beams);
+        let d = obs_dim(self.meta.beams());
         anyhow::ensure!(obs.len() == d, "observation has {} values, expected {d}", obs.len());
-        transfer_observation(obs, beams, self.mu, self.scan_range, &mut self.scratch);
-        let (v_m, omega_m) = self.meta.act(&self.scratch)?;
-        anyhow::ensure!(
-            v_m.is_finite() && omega_m.is_finite(),
-            "the meta policy answered a non-finite command ({v_m}, {omega_m})"
-        );
-        Ok(transfer_policy(v_m, omega_m, self.mu, self.bounds))
+        self.act_row(obs, None)
     }
 
     fn velocity_bounds(&self) -> (f64, f64) {
@@ -157,21 +150,25 @@ impl<P: NavPolicy> NavPolicy for Dvst<P> {
             obs.len(),
             noise.len()
         );
-        let mut out = Vec::with_capacity(noise.len());
-        for (o, &n) in obs.chunks_exact(d).zip(noise) {
-            if n.is_none() {
-                out.push(self.act(o)?);
-                continue;
-            }
-            transfer_observation(o, beams, self.mu, self.scan_range, &mut self.scratch);
-            let (v_m, omega_m) = self.meta.act_batch_noisy(&self.scratch, &[n])?[0];
-            anyhow::ensure!(
-                v_m.is_finite() && omega_m.is_finite(),
-                "the meta policy answered a non-finite command ({v_m}, {omega_m})"
-            );
-            out.push(transfer_policy(v_m, omega_m, self.mu, self.bounds));
-        }
-        Ok(out)
+        obs.chunks_exact(d).zip(noise).map(|(o, &n)| self.act_row(o, n)).collect()
+    }
+}
+
+impl<P: NavPolicy> Dvst<P> {
+    /// One observation of the right length through the meta policy: its deterministic action,
+    /// or the one sampled with noise `n`, transferred back to the robot.
+    fn act_row(&mut self, obs: &[f32], n: Option<[f32; 2]>) -> anyhow::Result<(f64, f64)> {
+        let beams = self.meta.beams();
+        transfer_observation(obs, beams, self.mu, self.scan_range, &mut self.scratch);
+        let (v_m, omega_m) = match n {
+            None => self.meta.act(&self.scratch)?,
+            Some(_) => self.meta.act_batch_noisy(&self.scratch, &[n])?[0],
+        };
+        anyhow::ensure!(
+            v_m.is_finite() && omega_m.is_finite(),
+            "the meta policy answered a non-finite command ({v_m}, {omega_m})"
+        );
+        Ok(transfer_policy(v_m, omega_m, self.mu, self.bounds))
     }
 }
 

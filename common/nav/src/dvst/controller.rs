@@ -627,7 +627,7 @@ impl DvstController {
         goal_distance_m: f64,
         state: &FootprintState,
     ) -> Result<Option<[f32; 2]>, ControllerError> {
-        let progress_m = 0.5 * self.meta.bounding_radius() * state.mu;
+        let radius_m = self.meta.bounding_radius() * state.mu;
         let escape = self.escapes.lock().unwrap_or_else(PoisonError::into_inner).touch(
             robot_id,
             now,
@@ -635,7 +635,7 @@ impl DvstController {
                 let seed = robot_id
                     .bytes()
                     .fold(FNV_OFFSET, |h, b| (h ^ b as u64).wrapping_mul(FNV_PRIME));
-                let e = StallEscape::new(self.escape_after_s, progress_m, seed)
+                let e = StallEscape::for_radius(self.escape_after_s, radius_m, seed)
                     .expect("the delay was checked by with_stall_escape, the progress is > 0");
                 Arc::new(Mutex::new(e))
             },
