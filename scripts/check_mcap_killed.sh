@@ -27,6 +27,21 @@ import json, os, signal, sys, time
 run = sys.argv[1]
 d = os.path.join(run, "mcap", "actor-0")
 deadline = time.monotonic() + 60
+MAGIC = b"\x89MCAP0\r\n"
+
+
+def holds_an_open_episode_log(path):
+    # Bytes on disk, and not yet finished: a finished file (it ends with the magic) may be an
+    # environment's newest for a moment after its last episode, before the next file opens, and
+    # a kill then leaves that environment nothing unfinished to read (a CI run failed so).
+    size = os.path.getsize(path)
+    if size == 0:
+        return False
+    with open(path, "rb") as f:
+        f.seek(max(0, size - len(MAGIC)))
+        return f.read() != MAGIC
+
+
 while True:
     if time.monotonic() > deadline:
         sys.exit("check-mcap: actor-0 wrote no complete episode into a rotated file within 60 s")
@@ -34,9 +49,7 @@ while True:
         pid = json.load(open(os.path.join(run, "pids.json")))["actors"][0]["pid"]
         files = sorted(f for f in os.listdir(d) if f.endswith(".mcap"))
         newest = {f.rsplit("-", 1)[0]: f for f in files}
-        ready = len(files) >= 6 and any(
-            os.path.getsize(os.path.join(d, f)) > 0 for f in newest.values()
-        )
+        ready = len(files) >= 6 and any(holds_an_open_episode_log(os.path.join(d, f)) for f in newest.values())
     except (FileNotFoundError, ValueError, KeyError, IndexError):
         # Not yet written (or caught mid-write): look again.
         ready = False
