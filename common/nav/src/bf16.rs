@@ -252,8 +252,19 @@ pub(crate) fn product(a: MatRef, b: MatRef, precision: Precision) -> Vec<f32> {
     match precision {
         Precision::Bf16 => Kernel::detect().gemm(a, b),
         Precision::Fp32 | Precision::Auto => {
-            let mut out = vec![0f32; a.rows * b.cols];
-            gemm_f32(&mut out, b.cols, a, b);
+            assert_eq!(a.cols, b.rows, "gemm: ({}, {}) x ({}, {})", a.rows, a.cols, b.rows, b.cols);
+            let len = a.rows * b.cols;
+            // Not zero-filled first: gemm overwrites (`read_dst = false`) every element, zeros
+            // where the inner dimension is empty, and a zero fill of every layer's output was
+            // memset the update paid for nothing.
+            let mut out = Vec::with_capacity(len);
+            if len > 0 {
+                // SAFETY: `out` has room for the (a.rows, b.cols) row-major product, and gemm
+                // reads only `a.data` and `b.data` (checked by MatRef's constructors).
+                unsafe { gemm_raw(out.as_mut_ptr(), b.cols, a, b, false) };
+            }
+            // SAFETY: gemm wrote all `len` elements above.
+            unsafe { out.set_len(len) };
             out
         }
     }
@@ -271,23 +282,35 @@ pub(crate) fn gemm_f32(dst: &mut [f32], dst_row_stride: usize, a: MatRef, b: Mat
     }
     assert!((m - 1) * dst_row_stride + n <= dst.len(), "gemm: destination too short");
     // SAFETY: every element gemm reads lies in `a.data` and `b.data` (MatRef's constructors
-    // check the last one) and every element it writes in `dst` (checked above).
+    // check the last one) and every element it touches in `dst` (checked above).
+    unsafe { gemm_raw(dst.as_mut_ptr(), dst_row_stride, a, b, true) }
+}
+
+/// `dst = a · b` (`accumulate = false`: `dst` is only written, so it may be uninitialized) or
+/// `dst += a · b` in fp32, `dst` row `i` starting at `i·dst_row_stride`.
+///
+/// # Safety
+/// `dst` must be valid for writes (and reads, when accumulating) of `(a.rows - 1) ·
+/// dst_row_stride + b.cols` floats, and `a.cols == b.rows`.
+unsafe fn gemm_raw(dst: *mut f32, dst_row_stride: usize, a: MatRef, b: MatRef, accumulate: bool) {
+    // SAFETY: the caller's contract; MatRef's constructors check that `a.data` and `b.data`
+    // hold every element their strides reach.
     unsafe {
         gemm::gemm(
-            m,
-            n,
-            k,
-            dst.as_mut_ptr(),
+            a.rows,
+            b.cols,
+            a.cols,
+            dst,
             1,
             dst_row_stride as isize,
-            true,
+            accumulate,
             a.data.as_ptr(),
             a.col_stride as isize,
             a.row_stride as isize,
             b.data.as_ptr(),
             b.col_stride as isize,
             b.row_stride as isize,
-            1.0,
+            if accumulate { 1.0 } else { 0.0 },
             1.0,
             false,
             false,
@@ -752,6 +775,30 @@ mod tests {
     use super::*;
     use candle_core::{Device, Var};
     use rand::{Rng, SeedableRng};
+
+    /// The fp32 product writes every element of its output, which it allocates without a
+    /// zero fill: over memory that held NaNs (freed just before, so the allocator likely
+    /// hands it back) it equals a naive product, and an empty inner dimension gives zeros.
+    #[test]
+    fn the_fp32_product_overwrites_its_output() {
+        for (m, k, n) in [(37, 19, 23), (128, 64, 1), (1, 300, 5), (9, 0, 7)] {
+            let (a, b) = (random(m, k, 1), random(k, n, 2));
+            drop(std::hint::black_box(vec![f32::NAN; m * n]));
+            let out =
+                product(MatRef::row_major(&a, m, k), MatRef::row_major(&b, k, n), Precision::Fp32);
+            assert_eq!(out.len(), m * n);
+            for i in 0..m {
+                for j in 0..n {
+                    let want: f32 = (0..k).map(|t| a[i * k + t] * b[t * n + j]).sum();
+                    let got = out[i * n + j];
+                    assert!(
+                        (got - want).abs() <= 1e-4 * (1.0 + want.abs()),
+                        "({m},{k},{n}) [{i},{j}]: {got} vs {want}"
+                    );
+                }
+            }
+        }
+    }
 
     fn random(rows: usize, cols: usize, seed: u64) -> Vec<f32> {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
