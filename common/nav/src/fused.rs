@@ -12,10 +12,17 @@
 //!   is a memcpy per row and backward a strided accumulation (col2im), where candle's
 //!   `index_select` + `index_add` went through generic gather/scatter.
 //!
+//! - [`reciprocal_scan`]: the scan encoder's input `1 / max(d + a, floor)` with a learnable
+//!   offset `a`. Backward: the offset's gradient summed in the same pass, where candle's
+//!   `broadcast_add`, `clamp` and `recip` made about twenty passes over the batch's ranges
+//!   (two masks from comparisons per clamp bound, each cast, multiplied and divided).
+//!
 //! On devices other than the CPU (the `cuda` feature) the same functions fall back to
 //! composite candle ops with identical results, so a model is defined once.
 
-use candle_core::{CpuStorage, CustomOp1, CustomOp2, DType, Device, Layout, Result, Shape, Tensor};
+use candle_core::{
+    CpuStorage, CustomOp1, CustomOp2, CustomOp3, DType, Device, Layout, Result, Shape, Tensor,
+};
 
 /// `x + bias` (bias broadcast over the last dimension) through a leaky ReLU of `slope`
 /// (0: ReLU).
@@ -25,6 +32,19 @@ pub fn bias_act(x: &Tensor, bias: &Tensor, slope: f32) -> Result<Tensor> {
     } else {
         let y = x.broadcast_add(bias)?;
         if slope == 0.0 { y.relu() } else { y.maximum(&(&y * slope as f64)?) }
+    }
+}
+
+/// `1 / max(scan + offset, floor)`: ranges `(…)` with a learnable `(1,)` offset, the scan
+/// encoder's reciprocal preprocessing. Values and gradients are candle's
+/// `scan.broadcast_add(offset)?.clamp(floor, f64::MAX)?.recip()` (at `scan + offset == floor`
+/// the gradient is halved, as candle's `maximum` splits it between equal arguments); the
+/// offset's gradient is summed in another order, so it agrees to rounding.
+pub fn reciprocal_scan(scan: &Tensor, offset: &Tensor, floor: f32) -> Result<Tensor> {
+    if scan.device().is_cpu() && scan.dtype() == DType::F32 {
+        scan.contiguous()?.apply_op2(&offset.contiguous()?, ReciprocalScan { floor })
+    } else {
+        scan.broadcast_add(offset)?.clamp(floor as f64, f64::MAX)?.recip()
     }
 }
 
@@ -130,6 +150,131 @@ impl CustomOp2 for BiasAct {
         Ok((Some(dx), Some(dbias)))
     }
 }
+
+/// `1 / max(scan + offset, floor)`.
+#[derive(Clone, Copy)]
+struct ReciprocalScan {
+    floor: f32,
+}
+
+impl ReciprocalScan {
+    /// The offset of a `(1,)` tensor, checked.
+    fn offset(s: &CpuStorage, l: &Layout) -> Result<f32> {
+        match f32_slice(s, l, "reciprocal-scan")? {
+            [a] => Ok(*a),
+            _ => candle_core::bail!("reciprocal-scan: offset {:?}, expected one value", l.dims()),
+        }
+    }
+
+    /// `d/dx` of the clamp and reciprocal at `x = d + a`, times `g`, as candle's backward
+    /// computes it: `−g / c²` with `c = max(x, floor)`, all of it where `x > floor`, half at
+    /// `x == floor`, none below.
+    fn grad(self, x: f32, g: f32) -> f32 {
+        let c = x.max(self.floor);
+        let dc = -(g / (c * c));
+        if x > self.floor {
+            dc
+        } else if x == self.floor {
+            dc / 2.0
+        } else {
+            0.0 * dc
+        }
+    }
+}
+
+impl CustomOp2 for ReciprocalScan {
+    fn name(&self) -> &'static str {
+        "reciprocal-scan"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let scan = f32_slice(s1, l1, "reciprocal-scan")?;
+        let a = Self::offset(s2, l2)?;
+        let out = scan.iter().map(|&d| 1.0 / (d + a).max(self.floor)).collect();
+        Ok((CpuStorage::F32(out), l1.shape().clone()))
+    }
+
+    fn bwd(
+        &self,
+        scan: &Tensor,
+        offset: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> Result<(Option<Tensor>, Option<Tensor>)> {
+        let grad = grad.contiguous()?;
+        let d_offset = scan.apply_op3_no_bwd(offset, &grad, &OffsetGrad(*self))?;
+        // The ranges are data in training; their gradient only where a caller tracks them.
+        let d_scan = if scan.track_op() {
+            Some(scan.apply_op3_no_bwd(offset, &grad, &ScanGrad(*self))?)
+        } else {
+            None
+        };
+        Ok((d_scan, Some(d_offset)))
+    }
+}
+
+/// The offset's gradient of [`ReciprocalScan`]: the sum of its element-wise gradient.
+struct OffsetGrad(ReciprocalScan);
+
+impl CustomOp3 for OffsetGrad {
+    fn name(&self) -> &'static str {
+        "reciprocal-scan-offset-grad"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let (scan, g) = (f32_slice(s1, l1, NAME_GRAD)?, f32_slice(s3, l3, NAME_GRAD)?);
+        let a = ReciprocalScan::offset(s2, l2)?;
+        if scan.len() != g.len() {
+            candle_core::bail!("{NAME_GRAD}: {:?} vs {:?}", l1.dims(), l3.dims());
+        }
+        // Summed in f64: a batch is ~70k terms of both signs.
+        let sum: f64 = scan.iter().zip(g).map(|(&d, &g)| self.0.grad(d + a, g) as f64).sum();
+        Ok((CpuStorage::F32(vec![sum as f32]), l2.shape().clone()))
+    }
+}
+
+/// The ranges' gradient of [`ReciprocalScan`].
+struct ScanGrad(ReciprocalScan);
+
+impl CustomOp3 for ScanGrad {
+    fn name(&self) -> &'static str {
+        "reciprocal-scan-grad"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let (scan, g) = (f32_slice(s1, l1, NAME_GRAD)?, f32_slice(s3, l3, NAME_GRAD)?);
+        let a = ReciprocalScan::offset(s2, l2)?;
+        if scan.len() != g.len() {
+            candle_core::bail!("{NAME_GRAD}: {:?} vs {:?}", l1.dims(), l3.dims());
+        }
+        let out = scan.iter().zip(g).map(|(&d, &g)| self.0.grad(d + a, g)).collect();
+        Ok((CpuStorage::F32(out), l1.shape().clone()))
+    }
+}
+
+const NAME_GRAD: &str = "reciprocal-scan-grad";
 
 /// `grad · act'(y)` from the activation's output `y`.
 struct ActGrad {
@@ -272,6 +417,54 @@ mod tests {
             assert!(close(gf.get(&x).unwrap(), gc.get(&x).unwrap()) < 1e-6, "dx, slope {slope}");
             assert!(close(gf.get(&b).unwrap(), gc.get(&b).unwrap()) < 1e-4, "dbias, slope {slope}");
         }
+    }
+
+    /// Forward and both gradients equal candle's composite ops, ranges below, at and above the
+    /// floor included (an offset of −0.3 puts some there).
+    #[test]
+    fn reciprocal_scan_matches_the_composite_ops() {
+        let dev = Device::Cpu;
+        let mut d: Vec<f32> = (0..6 * 40).map(|i| (i % 37) as f32 * 0.11).collect();
+        d[5] = 0.31; // 0.31 − 0.3 = 0.01 (rounded): at the floor, or next to it
+        let scan = Var::from_tensor(&Tensor::from_vec(d, (6, 40), &dev).unwrap()).unwrap();
+        for a in [0.0f32, 0.17, -0.3] {
+            let offset = Var::from_tensor(&Tensor::new(&[a], &dev).unwrap()).unwrap();
+            let w = Tensor::randn(0f32, 1.0, (6, 40), &dev).unwrap();
+            let fused = reciprocal_scan(&scan, &offset, 0.01).unwrap();
+            let composite = scan
+                .broadcast_add(&offset)
+                .unwrap()
+                .clamp(0.01f64, f64::MAX)
+                .unwrap()
+                .recip()
+                .unwrap();
+            assert_eq!(close(&fused, &composite), 0.0, "values, offset {a}");
+            let gf = (fused * &w).unwrap().sum_all().unwrap().backward().unwrap();
+            let gc = (composite * &w).unwrap().sum_all().unwrap().backward().unwrap();
+            assert_eq!(close(gf.get(&scan).unwrap(), gc.get(&scan).unwrap()), 0.0, "dscan, {a}");
+            let (f, c): (f32, f32) = (
+                gf.get(&offset).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap()[0],
+                gc.get(&offset).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap()[0],
+            );
+            // A sum of terms of both signs in another order: within rounding of their size.
+            let size: f32 =
+                gc.get(&scan).unwrap().abs().unwrap().sum_all().unwrap().to_scalar().unwrap();
+            assert!((f - c).abs() <= 1e-6 * size, "doffset, {a}: {f} vs {c} (terms {size})");
+        }
+    }
+
+    /// Ranges that are data (not tracked) get no gradient, and the offset still does.
+    #[test]
+    fn reciprocal_scan_of_untracked_ranges_gives_the_offset_its_gradient() {
+        let dev = Device::Cpu;
+        let scan = Tensor::from_vec(vec![0.5f32, 1.0, 2.0, 0.001], (2, 2), &dev).unwrap();
+        let offset = Var::from_tensor(&Tensor::new(&[0.0f32], &dev).unwrap()).unwrap();
+        let g =
+            reciprocal_scan(&scan, &offset, 0.01).unwrap().sum_all().unwrap().backward().unwrap();
+        assert!(g.get(&scan).is_none());
+        let got = g.get(&offset).unwrap().to_vec1::<f32>().unwrap()[0];
+        // −Σ 1/x² over the ranges above the floor; 0.001 is below it.
+        assert!((got - -(4.0 + 1.0 + 0.25)).abs() < 1e-5, "{got}");
     }
 
     #[test]

@@ -39,7 +39,7 @@ use rand::{Rng, SeedableRng};
 /// Slope of the LeakyReLU after the convolutions.
 const LEAKY_SLOPE: f32 = 0.01;
 /// Smallest value of d + a in the reciprocal preprocessing; keeps 1/(d + a) finite.
-const RECIPROCAL_FLOOR: f64 = 1e-2;
+const RECIPROCAL_FLOOR: f32 = 1e-2;
 
 /// softplus(x) = max(x, 0) + log(1 + exp(−|x|)), stable for large |x|.
 pub fn softplus(x: &Tensor) -> Result<Tensor> {
@@ -222,7 +222,7 @@ impl Module for ScanEncoder {
     /// `(batch, beams)` ranges in metres → `(batch, scan_features)`.
     fn forward(&self, scan: &Tensor) -> Result<Tensor> {
         let b = scan.dim(0)?;
-        let x = scan.broadcast_add(&self.offset)?.clamp(RECIPROCAL_FLOOR, f64::MAX)?.recip()?;
+        let x = crate::fused::reciprocal_scan(scan, &self.offset, RECIPROCAL_FLOOR)?;
         let x = x.reshape((b, self.beams, 1))?;
         let x = self.conv1.forward_act(&x, LEAKY_SLOPE)?;
         let x = self.conv2.forward_act(&x, LEAKY_SLOPE)?;
