@@ -20,10 +20,17 @@
 //!   times that group's weights, accumulated by gemm straight into the input gradient's rows
 //!   (a strided destination; `ceil(kernel/stride)` products and no col2im matrix); in bf16 the
 //!   product as one matrix through the bf16 kernel, then the col2im.
+//!
+//! [`products_bias_act`] is the layer as the networks run it: the bias and the leaky ReLU are
+//! applied in the same pass that keeps the valid rows (no copy of them first), and in backward
+//! one pass writes the activation's gradient straight onto the view's rows (the spread, zeros
+//! at the dropped rows) that both gradients read.
 
 use crate::bf16::{Kernel, MatRef, Precision, gemm_f32, product};
-use crate::fused::f32_slice;
-use candle_core::{CpuStorage, CustomOp1, CustomOp2, DType, Layout, Result, Shape, Tensor};
+use crate::fused::{ColumnSum, f32_slice};
+use candle_core::{
+    CpuStorage, CustomOp1, CustomOp2, CustomOp3, DType, Layout, Result, Shape, Tensor,
+};
 
 /// The ops' name in errors.
 const NAME: &str = "conv in place";
@@ -203,6 +210,132 @@ impl CustomOp2 for Forward {
         let dw = x.apply_op2_no_bwd(&dz, &WeightGrad(*self))?;
         let dx = dz.apply_op2_no_bwd(w, &InputGrad { f: *self, batch: x.dim(0)? })?;
         Ok((Some(dx), Some(dw)))
+    }
+}
+
+/// The convolution with its bias and a leaky ReLU of `slope` (0: ReLU): `x` `(batch, len,
+/// channels)`, `w` `(kernel·channels, out)`, `bias` `(out)` → `act(products + bias)`
+/// `(batch·out_len, out)`, gradients to all three. The same values and gradients as
+/// [`products`] followed by [`crate::fused::bias_act`], in fewer passes. CPU and f32 only.
+pub fn products_bias_act(
+    x: &Tensor,
+    w: &Tensor,
+    bias: &Tensor,
+    geometry: InPlace,
+    precision: Precision,
+    slope: f32,
+) -> Result<Tensor> {
+    if !x.device().is_cpu() || [x.dtype(), w.dtype(), bias.dtype()].iter().any(|&d| d != DType::F32)
+    {
+        candle_core::bail!("conv in place: f32 tensors on the CPU only");
+    }
+    let f = Forward { g: geometry, precision };
+    x.contiguous()?.apply_op3(&w.contiguous()?, &bias.contiguous()?, ForwardAct { f, slope })
+}
+
+/// [`Forward`] with the bias and activation applied as the valid rows are kept.
+struct ForwardAct {
+    f: Forward,
+    slope: f32,
+}
+
+impl CustomOp3 for ForwardAct {
+    fn name(&self) -> &'static str {
+        "conv-in-place-bias-act"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let g = self.f.g;
+        let batch = g.batch_of_input(l1.dims())?;
+        g.check_weight(l2.dims())?;
+        let o = g.out_channels;
+        if l3.dims() != [o] {
+            candle_core::bail!("conv in place: bias {:?}, expected ({o})", l3.dims());
+        }
+        let (x, w) = (f32_slice(s1, l1, NAME)?, f32_slice(s2, l2, NAME)?);
+        let bias = f32_slice(s3, l3, NAME)?;
+        let z = product(g.view(x, batch), MatRef::row_major(w, g.width(), o), self.f.precision);
+        let slope = self.slope;
+        let mut y = Vec::with_capacity(batch * g.out_len * o);
+        for b in 0..batch {
+            let at = b * g.period() * o;
+            for row in z[at..at + g.out_len * o].chunks_exact(o) {
+                y.extend(row.iter().zip(bias).map(|(&v, &b)| {
+                    let y = v + b;
+                    if y > 0.0 { y } else { slope * y }
+                }));
+            }
+        }
+        Ok((CpuStorage::F32(y), Shape::from((batch * g.out_len, o))))
+    }
+
+    fn bwd(
+        &self,
+        x: &Tensor,
+        w: &Tensor,
+        _bias: &Tensor,
+        res: &Tensor,
+        grad: &Tensor,
+    ) -> Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        let g = self.f.g;
+        // The activation's gradient on the view's rows, once for every gradient below.
+        let dz =
+            grad.contiguous()?.apply_op2_no_bwd(res, &SpreadActGrad { g, slope: self.slope })?;
+        // The dropped rows are zeros, so the column sum over the view is the bias gradient.
+        let dbias = dz.apply_op1_no_bwd(&ColumnSum)?;
+        let dw = x.apply_op2_no_bwd(&dz, &WeightGrad(self.f))?;
+        let dx = if x.track_op() {
+            Some(dz.apply_op2_no_bwd(w, &InputGrad { f: self.f, batch: x.dim(0)? })?)
+        } else {
+            None
+        };
+        Ok((dx, Some(dw), Some(dbias)))
+    }
+}
+
+/// `grad · act'(y)` spread over the view's rows, zeros at the dropped rows: the output gradient
+/// of [`ForwardAct`] as [`Spread`] lays it out.
+struct SpreadActGrad {
+    g: InPlace,
+    slope: f32,
+}
+
+impl CustomOp2 for SpreadActGrad {
+    fn name(&self) -> &'static str {
+        "conv-in-place-spread-act-grad"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let g = self.g;
+        let batch = g.batch_of_output(l1.dims())?;
+        if l1.dims() != l2.dims() {
+            candle_core::bail!("conv in place: gradient {:?} vs output {:?}", l1.dims(), l2.dims());
+        }
+        let (grad, y) = (f32_slice(s1, l1, NAME)?, f32_slice(s2, l2, NAME)?);
+        let (o, slope) = (g.out_channels, self.slope);
+        let (valid, dropped) = (g.out_len * o, (g.period() - g.out_len) * o);
+        let mut out = Vec::with_capacity(g.view_rows(batch) * o);
+        for (b, (grad, y)) in grad.chunks_exact(valid).zip(y.chunks_exact(valid)).enumerate() {
+            if b > 0 {
+                out.resize(out.len() + dropped, 0.0);
+            }
+            out.extend(grad.iter().zip(y).map(|(&g, &y)| if y > 0.0 { g } else { slope * g }));
+        }
+        Ok((CpuStorage::F32(out), Shape::from((g.view_rows(batch), o))))
     }
 }
 

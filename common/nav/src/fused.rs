@@ -308,7 +308,7 @@ impl CustomOp2 for ActGrad {
 /// The bias gradient: the sum of a contiguous `(…, n)` tensor over every axis but the last,
 /// in one pass over rows (candle's `sum(0)` goes through its generic strided reduction, a
 /// visible share of an update's profile).
-struct ColumnSum;
+pub(crate) struct ColumnSum;
 
 impl CustomOp1 for ColumnSum {
     fn name(&self) -> &'static str {

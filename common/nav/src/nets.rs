@@ -112,16 +112,20 @@ impl Conv1dChannelsLast {
 }
 
 impl Conv1dChannelsLast {
+    /// The kernel as `(kernel·in, out)`: `(out, in, k)` → `(k, in, out)`, rows in a window's
+    /// (position, channel) order.
+    fn kernel_matrix(&self) -> Result<Tensor> {
+        self.weight
+            .permute((2, 1, 0))?
+            .contiguous()?
+            .reshape((self.kernel * self.in_channels, self.out_channels))
+    }
+
     /// `(batch, in_len, in_channels)` → the products with the kernel, before the bias,
     /// `(batch·out_len, out_channels)`.
     fn products(&self, x: &Tensor) -> Result<Tensor> {
         let b = x.dim(0)?;
-        // (out, in, k) → (k, in, out) → (k·in, out): rows in a window's (position, channel) order.
-        let w = self
-            .weight
-            .permute((2, 1, 0))?
-            .contiguous()?
-            .reshape((self.kernel * self.in_channels, self.out_channels))?;
+        let w = self.kernel_matrix()?;
         match self.in_place {
             Some(g) if x.device().is_cpu() && x.dtype() == DType::F32 => {
                 crate::conv::products(x, &w, g, self.precision)
@@ -138,11 +142,14 @@ impl Conv1dChannelsLast {
     /// The convolution followed by a leaky ReLU of `slope`, fused with the bias.
     pub fn forward_act(&self, x: &Tensor, slope: f32) -> Result<Tensor> {
         let b = x.dim(0)?;
-        crate::fused::bias_act(&self.products(x)?, &self.bias, slope)?.reshape((
-            b,
-            self.out_len,
-            self.out_channels,
-        ))
+        let y = match self.in_place {
+            Some(g) if x.device().is_cpu() && x.dtype() == DType::F32 => {
+                let w = self.kernel_matrix()?;
+                crate::conv::products_bias_act(x, &w, &self.bias, g, self.precision, slope)?
+            }
+            _ => crate::fused::bias_act(&self.products(x)?, &self.bias, slope)?,
+        };
+        y.reshape((b, self.out_len, self.out_channels))
     }
 }
 

@@ -56,6 +56,52 @@ fn reading_in_place_is_the_unfolded_convolution() {
     }
 }
 
+/// The fused layer equals the products followed by the fused bias and activation: the same
+/// values and all three gradients, bit for bit, ReLU and leaky, fp32 and bf16.
+#[test]
+fn the_fused_bias_and_activation_equal_the_separate_ops() {
+    let shapes = [(540, 1, 20, 5, 32, 3), (105, 32, 10, 3, 32, 2), (12, 2, 5, 3, 3, 1)];
+    let dev = Device::Cpu;
+    for (i, &(len, c, k, s, o, b)) in shapes.iter().enumerate() {
+        let g = InPlace::new(len, c, k, s, o).unwrap();
+        let x = Var::from_tensor(&Tensor::randn(0f32, 1.0, (b, len, c), &dev).unwrap()).unwrap();
+        let w = Var::from_tensor(&Tensor::randn(0f32, 1.0, (k * c, o), &dev).unwrap()).unwrap();
+        let bias = Var::from_tensor(&Tensor::randn(0f32, 1.0, o, &dev).unwrap()).unwrap();
+        let out_len = (len - k) / s + 1;
+        let mix = Tensor::randn(0f32, 1.0, (b * out_len, o), &dev).unwrap();
+        for p in [Precision::Fp32, Precision::Bf16] {
+            for slope in [0.0, 0.01] {
+                let fused = products_bias_act(&x, &w, &bias, g, p, slope).unwrap();
+                let separate =
+                    crate::fused::bias_act(&products(&x, &w, g, p).unwrap(), &bias, slope).unwrap();
+                let what = format!("shape {i}, {p:?}, slope {slope}");
+                assert_eq!(fused.dims(), separate.dims(), "{what}");
+                assert_eq!(max_diff(&fused, &separate), 0.0, "forward, {what}");
+                let gf = (fused * &mix).unwrap().sum_all().unwrap().backward().unwrap();
+                let gs = (separate * &mix).unwrap().sum_all().unwrap().backward().unwrap();
+                for (name, v) in [("dx", &x), ("dw", &w), ("dbias", &bias)] {
+                    let d = max_diff(gf.get(v).unwrap(), gs.get(v).unwrap());
+                    assert_eq!(d, 0.0, "{name}, {what}");
+                }
+            }
+        }
+    }
+}
+
+/// An input that is data (not tracked) gets no gradient; the weights still do.
+#[test]
+fn the_fused_layer_gives_untracked_input_no_gradient() {
+    let dev = Device::Cpu;
+    let g = InPlace::new(12, 2, 5, 3, 3).unwrap();
+    let x = Tensor::randn(0f32, 1.0, (2, 12, 2), &dev).unwrap();
+    let w = Var::from_tensor(&Tensor::randn(0f32, 1.0, (10, 3), &dev).unwrap()).unwrap();
+    let bias = Var::from_tensor(&Tensor::zeros(3, DType::F32, &dev).unwrap()).unwrap();
+    let y = products_bias_act(&x, &w, &bias, g, Precision::Fp32, 0.01).unwrap();
+    let grads = y.sum_all().unwrap().backward().unwrap();
+    assert!(grads.get(&x).is_none());
+    assert!(grads.get(&w).is_some() && grads.get(&bias).is_some());
+}
+
 #[test]
 fn lengths_that_are_not_a_multiple_of_the_stride_are_not_read_in_place() {
     assert!(InPlace::new(23, 3, 5, 2, 4).is_none());
