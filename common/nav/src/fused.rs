@@ -208,10 +208,11 @@ impl CustomOp2 for ReciprocalScan {
         grad: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>)> {
         let grad = grad.contiguous()?;
-        let d_offset = scan.apply_op3_no_bwd(offset, &grad, &OffsetGrad(*self))?;
+        let grad_of = |summed| ReciprocalScanGrad { op: *self, summed };
+        let d_offset = scan.apply_op3_no_bwd(offset, &grad, &grad_of(true))?;
         // The ranges are data in training; their gradient only where a caller tracks them.
         let d_scan = if scan.track_op() {
-            Some(scan.apply_op3_no_bwd(offset, &grad, &ScanGrad(*self))?)
+            Some(scan.apply_op3_no_bwd(offset, &grad, &grad_of(false))?)
         } else {
             None
         };
@@ -219,40 +220,16 @@ impl CustomOp2 for ReciprocalScan {
     }
 }
 
-/// The offset's gradient of [`ReciprocalScan`]: the sum of its element-wise gradient.
-struct OffsetGrad(ReciprocalScan);
-
-impl CustomOp3 for OffsetGrad {
-    fn name(&self) -> &'static str {
-        "reciprocal-scan-offset-grad"
-    }
-
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        s3: &CpuStorage,
-        l3: &Layout,
-    ) -> Result<(CpuStorage, Shape)> {
-        let (scan, g) = (f32_slice(s1, l1, NAME_GRAD)?, f32_slice(s3, l3, NAME_GRAD)?);
-        let a = ReciprocalScan::offset(s2, l2)?;
-        if scan.len() != g.len() {
-            candle_core::bail!("{NAME_GRAD}: {:?} vs {:?}", l1.dims(), l3.dims());
-        }
-        // Summed in f64: a batch is ~70k terms of both signs.
-        let sum: f64 = scan.iter().zip(g).map(|(&d, &g)| self.0.grad(d + a, g) as f64).sum();
-        Ok((CpuStorage::F32(vec![sum as f32]), l2.shape().clone()))
-    }
+/// The gradients of [`ReciprocalScan`] from `(scan, offset, grad)`: the ranges' (element-wise)
+/// or, `summed`, the offset's (their sum).
+struct ReciprocalScanGrad {
+    op: ReciprocalScan,
+    summed: bool,
 }
 
-/// The ranges' gradient of [`ReciprocalScan`].
-struct ScanGrad(ReciprocalScan);
-
-impl CustomOp3 for ScanGrad {
+impl CustomOp3 for ReciprocalScanGrad {
     fn name(&self) -> &'static str {
-        "reciprocal-scan-grad"
+        if self.summed { "reciprocal-scan-offset-grad" } else { NAME_GRAD }
     }
 
     fn cpu_fwd(
@@ -269,8 +246,14 @@ impl CustomOp3 for ScanGrad {
         if scan.len() != g.len() {
             candle_core::bail!("{NAME_GRAD}: {:?} vs {:?}", l1.dims(), l3.dims());
         }
-        let out = scan.iter().zip(g).map(|(&d, &g)| self.0.grad(d + a, g)).collect();
-        Ok((CpuStorage::F32(out), l1.shape().clone()))
+        let grads = scan.iter().zip(g).map(|(&d, &g)| self.op.grad(d + a, g));
+        if self.summed {
+            // Summed in f64: a batch is ~70k terms of both signs.
+            let sum: f64 = grads.map(f64::from).sum();
+            Ok((CpuStorage::F32(vec![sum as f32]), l2.shape().clone()))
+        } else {
+            Ok((CpuStorage::F32(grads.collect()), l1.shape().clone()))
+        }
     }
 }
 
