@@ -27,7 +27,7 @@
 //! at the dropped rows) that both gradients read.
 
 use crate::bf16::{Kernel, MatRef, Precision, gemm_f32, product};
-use crate::fused::{ColumnSum, f32_slice};
+use crate::fused::{ColumnSum, bias_leaky, f32_slice, leaky_grad};
 use candle_core::{
     CpuStorage, CustomOp1, CustomOp2, CustomOp3, DType, Layout, Result, Shape, Tensor,
 };
@@ -91,6 +91,12 @@ impl InPlace {
     /// The windows of `x` (`batch` samples) as the rows of one matrix.
     fn view<'a>(&self, x: &'a [f32], batch: usize) -> MatRef<'a> {
         MatRef::strided(x, self.view_rows(batch), self.width(), self.step(), 1)
+    }
+
+    /// Each sample's valid rows (`out_len · out` floats) of a product over the view's rows.
+    fn valid_rows<'a>(&self, z: &'a [f32], batch: usize) -> impl Iterator<Item = &'a [f32]> {
+        let (period, valid) = (self.period() * self.out_channels, self.out_len * self.out_channels);
+        (0..batch).map(move |b| &z[b * period..b * period + valid])
     }
 
     /// The output gradient `(batch·out_len, out)` on the view's rows, zeros at dropped rows.
@@ -191,9 +197,8 @@ impl CustomOp2 for Forward {
         let o = g.out_channels;
         let z = product(g.view(x, batch), MatRef::row_major(w, g.width(), o), self.precision);
         let mut y = Vec::with_capacity(batch * g.out_len * o);
-        for b in 0..batch {
-            let at = b * g.period() * o;
-            y.extend_from_slice(&z[at..at + g.out_len * o]);
+        for rows in g.valid_rows(&z, batch) {
+            y.extend_from_slice(rows);
         }
         Ok((CpuStorage::F32(y), Shape::from((batch * g.out_len, o))))
     }
@@ -265,14 +270,8 @@ impl CustomOp3 for ForwardAct {
         let z = product(g.view(x, batch), MatRef::row_major(w, g.width(), o), self.f.precision);
         let slope = self.slope;
         let mut y = Vec::with_capacity(batch * g.out_len * o);
-        for b in 0..batch {
-            let at = b * g.period() * o;
-            for row in z[at..at + g.out_len * o].chunks_exact(o) {
-                y.extend(row.iter().zip(bias).map(|(&v, &b)| {
-                    let y = v + b;
-                    if y > 0.0 { y } else { slope * y }
-                }));
-            }
+        for row in g.valid_rows(&z, batch).flat_map(|rows| rows.chunks_exact(o)) {
+            y.extend(row.iter().zip(bias).map(|(&v, &b)| bias_leaky(v, b, slope)));
         }
         Ok((CpuStorage::F32(y), Shape::from((batch * g.out_len, o))))
     }
@@ -333,7 +332,7 @@ impl CustomOp2 for SpreadActGrad {
             if b > 0 {
                 out.resize(out.len() + dropped, 0.0);
             }
-            out.extend(grad.iter().zip(y).map(|(&g, &y)| if y > 0.0 { g } else { slope * g }));
+            out.extend(grad.iter().zip(y).map(|(&g, &y)| leaky_grad(g, y, slope)));
         }
         Ok((CpuStorage::F32(out), Shape::from((g.view_rows(batch), o))))
     }

@@ -24,6 +24,21 @@ use candle_core::{
     CpuStorage, CustomOp1, CustomOp2, CustomOp3, DType, Device, Layout, Result, Shape, Tensor,
 };
 
+/// `act(v + b)`: a leaky ReLU of `slope` (0: ReLU) after the bias, the epilogue every fused
+/// layer applies.
+#[inline]
+pub(crate) fn bias_leaky(v: f32, b: f32, slope: f32) -> f32 {
+    let y = v + b;
+    if y > 0.0 { y } else { slope * y }
+}
+
+/// `g · act'` read from the activation's output `y` (`y > 0` exactly where its input was, for
+/// `slope ≥ 0`).
+#[inline]
+pub(crate) fn leaky_grad(g: f32, y: f32, slope: f32) -> f32 {
+    if y > 0.0 { g } else { slope * g }
+}
+
 /// `x + bias` (bias broadcast over the last dimension) through a leaky ReLU of `slope`
 /// (0: ReLU).
 pub fn bias_act(x: &Tensor, bias: &Tensor, slope: f32) -> Result<Tensor> {
@@ -129,10 +144,7 @@ impl CustomOp2 for BiasAct {
         let s = self.slope;
         let mut out = Vec::with_capacity(x.len());
         for row in x.chunks_exact(n) {
-            out.extend(row.iter().zip(bias).map(|(&v, &b)| {
-                let y = v + b;
-                if y > 0.0 { y } else { s * y }
-            }));
+            out.extend(row.iter().zip(bias).map(|(&v, &b)| bias_leaky(v, b, s)));
         }
         Ok((CpuStorage::F32(out), l1.shape().clone()))
     }
@@ -282,7 +294,7 @@ impl CustomOp2 for ActGrad {
             candle_core::bail!("act-grad: {:?} vs {:?}", l1.dims(), l2.dims());
         }
         let s = self.slope;
-        let out = g.iter().zip(y).map(|(&g, &y)| if y > 0.0 { g } else { s * g }).collect();
+        let out = g.iter().zip(y).map(|(&g, &y)| leaky_grad(g, y, s)).collect();
         Ok((CpuStorage::F32(out), l1.shape().clone()))
     }
 }
