@@ -68,9 +68,11 @@ impl CustomOp2 for XWt {
         grad: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>)> {
         let grad = grad.contiguous()?;
-        let dx = grad.apply_op2_no_bwd(w, &InputGrad(*self))?;
-        let dw = grad.apply_op2_no_bwd(x, &WeightGrad(*self))?;
-        Ok((Some(dx), Some(dw)))
+        // Only the gradients a caller tracks: the policy loss reads the critics' heads with
+        // detached weights (`Critic::forward_for_policy`), and their gradients are its waste.
+        let dx = x.track_op().then(|| grad.apply_op2_no_bwd(w, &InputGrad(*self))).transpose()?;
+        let dw = w.track_op().then(|| grad.apply_op2_no_bwd(x, &WeightGrad(*self))).transpose()?;
+        Ok((dx, dw))
     }
 }
 

@@ -152,14 +152,14 @@ impl CustomOp2 for BiasAct {
     fn bwd(
         &self,
         _x: &Tensor,
-        _bias: &Tensor,
+        bias: &Tensor,
         res: &Tensor,
         grad: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>)> {
         // y > 0 exactly where x + bias > 0 (slope ≥ 0), so the result serves as the mask.
         let dx = grad.contiguous()?.apply_op2_no_bwd(res, &ActGrad { slope: self.slope })?;
-        let dbias = dx.apply_op1_no_bwd(&ColumnSum)?;
-        Ok((Some(dx), Some(dbias)))
+        let dbias = bias.track_op().then(|| dx.apply_op1_no_bwd(&ColumnSum)).transpose()?;
+        Ok((Some(dx), dbias))
     }
 }
 

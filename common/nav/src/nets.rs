@@ -392,24 +392,37 @@ impl Critic {
     /// Q(s, a) for a batch, shape `(batch,)`.
     pub fn forward(&self, obs: &Tensor, action: &Tensor) -> Result<Tensor> {
         let (scan, extra) = split_obs(obs, self.layout)?;
-        self.head(&self.encoder.forward(&scan)?, &extra, action)
+        let layers = [&self.fc1, &self.fc2, &self.q];
+        self.head(layers, &self.encoder.forward(&scan)?, &extra, action)
     }
 
     /// Q(s, a) with the scan features cut from the graph: the same value, and the same gradient
     /// with respect to the action, without back-propagating into the convolutions. The policy
     /// loss only needs ∂Q/∂a (the critic's own gradients are dropped there), and the scan
     /// encoder's backward pass is the most expensive part of a critic's.
+    ///
+    /// The head's weights are read detached too, so that its backward pass computes only the
+    /// gradients that reach the action, not the weights' own.
     pub fn forward_for_policy(&self, obs: &Tensor, action: &Tensor) -> Result<Tensor> {
         let (scan, extra) = split_obs(obs, self.layout)?;
-        self.head(&self.encoder.forward(&scan)?.detach(), &extra, action)
+        let detached = |l: &Linear| Linear::new(l.weight().detach(), l.bias().map(Tensor::detach));
+        let [fc1, fc2, q] = [detached(&self.fc1), detached(&self.fc2), detached(&self.q)];
+        self.head([&fc1, &fc2, &q], &self.encoder.forward(&scan)?.detach(), &extra, action)
     }
 
-    fn head(&self, features: &Tensor, extra: &Tensor, action: &Tensor) -> Result<Tensor> {
+    /// The layers after the encoder, `[fc1, fc2, q]`, on the features.
+    fn head(
+        &self,
+        [fc1, fc2, q]: [&Linear; 3],
+        features: &Tensor,
+        extra: &Tensor,
+        action: &Tensor,
+    ) -> Result<Tensor> {
         let h = Tensor::cat(&[features, extra, action], 1)?;
         let p = self.precision;
-        let h = linear_act(&self.fc1, &h, 0.0, p)?;
-        let h = linear_act(&self.fc2, &h, 0.0, p)?;
-        dense(&self.q, &h, p)?.squeeze(1)
+        let h = linear_act(fc1, &h, 0.0, p)?;
+        let h = linear_act(fc2, &h, 0.0, p)?;
+        dense(q, &h, p)?.squeeze(1)
     }
 }
 
@@ -618,6 +631,41 @@ mod tests {
         // Observations of the other layout, and weights of the other network, are refused.
         assert!(a.deterministic(&obs(2)).is_err());
         assert!(Actor::from_safetensors(&bytes, &cfg.network, layout, &Device::Cpu).is_err());
+    }
+
+    /// What the policy loss reads: Q(s, a) and ∂Q/∂a as the full forward pass gives them, and
+    /// no gradient for any of the critic's own variables.
+    #[test]
+    fn the_critic_for_the_policy_gives_the_action_gradient_only() {
+        let cfg = Config::default();
+        let vm = VarMap::new();
+        let vb = VarBuilder::from_varmap(&vm, DType::F32, &Device::Cpu);
+        let c = Critic::new(vb, &cfg.network, cfg.obs_layout()).unwrap();
+        init_seeded(&vm, 3).unwrap();
+        let a: Vec<f32> = (0..8).map(|i| (i as f32 * 0.37).sin()).collect();
+        let action = candle_core::Var::from_vec(a, (4, 2), &Device::Cpu).unwrap();
+        let full = c.forward(&obs(4), &action).unwrap();
+        let for_policy = c.forward_for_policy(&obs(4), &action).unwrap();
+        let diff = |x: &Tensor, y: &Tensor| -> f32 {
+            (x - y)
+                .unwrap()
+                .abs()
+                .unwrap()
+                .flatten_all()
+                .unwrap()
+                .max(0)
+                .unwrap()
+                .to_scalar()
+                .unwrap()
+        };
+        assert_eq!(diff(&full, &for_policy), 0.0);
+        let g_full = full.sum_all().unwrap().backward().unwrap();
+        let g_policy = for_policy.sum_all().unwrap().backward().unwrap();
+        assert_eq!(diff(g_full.get(&action).unwrap(), g_policy.get(&action).unwrap()), 0.0);
+        for (name, var) in vm.data().lock().unwrap().iter() {
+            assert!(g_full.get(var).is_some(), "{name}: the full pass reaches it");
+            assert!(g_policy.get(var).is_none(), "{name}: no gradient for the policy loss");
+        }
     }
 
     #[test]
